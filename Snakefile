@@ -1,0 +1,22 @@
+# gpja: reproduction workflow for "Geometric-Photometric Joint Alignment".
+# Setup only: configuration, validation, includes and the default target.
+# Each stage lives in workflow/rules/<stage>.smk; all logic lives in the gpja package.
+from snakemake.utils import min_version, validate
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+validate(config, "workflow/schemas/config.schema.yaml")
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/data.smk"
+
+
+rule all:
+    input:
+        all_targets,
+    default_target: True

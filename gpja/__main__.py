@@ -1,0 +1,5 @@
+import sys
+
+from gpja.cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""Datasets: FaceScape-layout reading and the synthetic benchmark generator."""

@@ -1,0 +1,264 @@
+"""Triangle meshes with a separate UV index, and their files.
+
+``TexturedMesh`` keeps welded positions ``V (n, 3)`` with faces ``F (m, 3)`` and
+texture coordinates ``UV (k, 2)`` with their own faces ``F_uv (m, 3)``: a UV seam
+splits texture coordinates, never positions (DESIGN.md). UVs follow OBJ's
+convention, origin bottom-left, v up.
+
+OBJ I/O is written here rather than taken from trimesh because trimesh splits
+vertices at UV seams, which breaks the topology every method shares, and
+because vertex order and float values must survive a round trip bit for bit
+(floats are written with 17 significant digits). PLY scans go through trimesh,
+which reads every PLY flavour FaceScape and MVS tools produce.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from gpja.errors import InputError
+from gpja.io import atomic_path, read_image, write_image, write_text
+
+
+@dataclass(eq=False)
+class TexturedMesh:
+    """A triangle mesh, optionally with a UV parametrisation and a texture image.
+
+    Attributes:
+        V: (n, 3) float64 vertex positions, mm.
+        F: (m, 3) int64 vertex indices per triangle (counter-clockwise = outward).
+        UV: (k, 2) float64 texture coordinates in [0, 1], origin bottom-left; or None.
+        F_uv: (m, 3) int64 indices into ``UV`` per triangle corner; or None.
+        texture: (t, t, 3) float32 RGB in [0, 1]; or None.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    UV: np.ndarray | None = None
+    F_uv: np.ndarray | None = None
+    texture: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.V = np.ascontiguousarray(self.V, dtype=np.float64).reshape(-1, 3)
+        self.F = np.ascontiguousarray(self.F, dtype=np.int64).reshape(-1, 3)
+        if (self.UV is None) != (self.F_uv is None):
+            raise ValueError("UV and F_uv must be given together")
+        if self.UV is not None:
+            self.UV = np.ascontiguousarray(self.UV, dtype=np.float64).reshape(-1, 2)
+            self.F_uv = np.ascontiguousarray(self.F_uv, dtype=np.int64).reshape(-1, 3)
+
+    @property
+    def has_uv(self) -> bool:
+        return self.UV is not None
+
+    def with_vertices(self, V: np.ndarray) -> "TexturedMesh":
+        """The same mesh (shared faces, UVs, texture) with new positions ``V (n, 3)``."""
+        V = np.asarray(V, dtype=np.float64)
+        if V.shape != self.V.shape:
+            raise ValueError(f"new vertices have shape {V.shape}, expected {self.V.shape}")
+        return replace(self, V=V)
+
+    def validate(self, source: str | Path = "mesh") -> "TexturedMesh":
+        """Check the mesh is usable; raise :class:`InputError` naming ``source`` if not.
+
+        Checks: non-empty, finite positions, face indices in range, UV faces
+        matching faces one to one with indices in range.
+        """
+        if len(self.V) == 0 or len(self.F) == 0:
+            raise InputError(source, f"empty mesh ({len(self.V)} vertices, {len(self.F)} faces)")
+        bad = ~np.isfinite(self.V).all(axis=1)
+        if bad.any():
+            raise InputError(source, f"{int(bad.sum())} vertices have NaN or infinite coordinates (first: vertex {int(np.argmax(bad))})")
+        if self.F.min() < 0 or self.F.max() >= len(self.V):
+            raise InputError(source, f"face indices out of range [0, {len(self.V)}) (min {self.F.min()}, max {self.F.max()})")
+        if self.has_uv:
+            if len(self.F_uv) != len(self.F):
+                raise InputError(source, f"{len(self.F_uv)} UV faces for {len(self.F)} faces")
+            if len(self.UV) == 0 or self.F_uv.min() < 0 or self.F_uv.max() >= len(self.UV):
+                raise InputError(source, "UV face indices out of range")
+            if not np.isfinite(self.UV).all():
+                raise InputError(source, "texture coordinates contain NaN or infinity")
+        return self
+
+    def face_normals(self) -> np.ndarray:
+        """(m, 3) float64 unit face normals (zero for degenerate faces)."""
+        tri = self.V[self.F]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        norm = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+    def edge_lengths(self) -> np.ndarray:
+        """(e,) float64 length of every undirected edge, mm."""
+        e = np.sort(self.F[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        e = np.unique(e, axis=0)
+        return np.linalg.norm(self.V[e[:, 0]] - self.V[e[:, 1]], axis=1)
+
+
+# --- OBJ + MTL + PNG ----------------------------------------------------------------------
+
+def write_obj(path: str | Path, mesh: TexturedMesh, texture_name: str | None = "texture.png") -> None:
+    """Write a mesh as OBJ (+ MTL referencing ``texture_name``, + the PNG if the mesh has one).
+
+    With ``texture_name`` set and ``mesh.texture`` None, the MTL references an
+    existing (shared) texture next to the OBJ without writing it. All files are
+    written atomically.
+    """
+    path = Path(path)
+    mesh.validate(path)
+    mtl_name = path.with_suffix(".mtl").name
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="ascii") as fh:
+        fh.write("# gpja TexturedMesh: welded positions, separate UV faces\n")
+        if texture_name is not None:
+            fh.write(f"mtllib {mtl_name}\nusemtl material0\n")
+        np.savetxt(fh, mesh.V, fmt="v %.17g %.17g %.17g")
+        if mesh.has_uv:
+            np.savetxt(fh, mesh.UV, fmt="vt %.17g %.17g")
+            corners = np.stack([mesh.F + 1, mesh.F_uv + 1], axis=2).reshape(-1, 6)
+            np.savetxt(fh, corners, fmt="f %d/%d %d/%d %d/%d")
+        else:
+            np.savetxt(fh, mesh.F + 1, fmt="f %d %d %d")
+    if texture_name is not None:
+        write_text(path.with_suffix(".mtl"),
+                   f"newmtl material0\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {texture_name}\n")
+        if mesh.texture is not None:
+            write_image(path.parent / texture_name, mesh.texture)
+
+
+def _parse_faces(lines: list[str], path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Parse ``f`` lines (any polygon, fan-triangulated) into vertex and UV faces."""
+    fv: list[list[int]] = []
+    ft: list[list[int]] = []
+    has_vt = None
+    for lineno, line in lines:
+        corners = line.split()[1:]
+        if len(corners) < 3:
+            raise InputError(path, f"line {lineno}: face with fewer than 3 corners")
+        try:
+            parts = [c.split("/") for c in corners]
+            v = [int(p[0]) for p in parts]
+            t = [int(p[1]) for p in parts] if len(parts[0]) > 1 and parts[0][1] else None
+        except (ValueError, IndexError):
+            raise InputError(path, f"line {lineno}: malformed face {line.strip()!r}") from None
+        if has_vt is None:
+            has_vt = t is not None
+        elif has_vt != (t is not None):
+            raise InputError(path, f"line {lineno}: some faces have texture indices and some do not")
+        for k in range(1, len(v) - 1):
+            fv.append([v[0], v[k], v[k + 1]])
+            if t is not None:
+                ft.append([t[0], t[k], t[k + 1]])
+    return np.array(fv, dtype=np.int64).reshape(-1, 3), (np.array(ft, dtype=np.int64).reshape(-1, 3) if has_vt else None)
+
+
+def _resolve_index(idx: np.ndarray, count: int) -> np.ndarray:
+    """OBJ indices are 1-based; negative ones count back from the end."""
+    return np.where(idx < 0, count + idx, idx - 1)
+
+
+def read_obj(path: str | Path, load_texture: bool = True) -> TexturedMesh:
+    """Read an OBJ (triangles or polygons; ``v``, ``vt``, ``f``, ``mtllib``/``map_Kd``).
+
+    Raises:
+        InputError: missing file, malformed lines, out-of-range indices, NaN
+        coordinates, empty mesh, or a referenced texture that cannot be read.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "mesh file not found")
+    try:
+        text = path.read_text(encoding="utf-8", errors="strict")
+    except UnicodeDecodeError:
+        raise InputError(path, "not a text OBJ file") from None
+    v_rows, vt_rows, f_lines, mtllib = [], [], [], None
+    for lineno, line in enumerate(text.splitlines(), 1):
+        if line.startswith("v "):
+            v_rows.append((lineno, line))
+        elif line.startswith("vt "):
+            vt_rows.append((lineno, line))
+        elif line.startswith("f "):
+            f_lines.append((lineno, line))
+        elif line.startswith("mtllib ") and mtllib is None:
+            mtllib = line.split(maxsplit=1)[1].strip()
+
+    def floats(rows, n):
+        try:
+            return np.array([r.split()[1:n + 1] for _, r in rows], dtype=np.float64).reshape(-1, n)
+        except ValueError:
+            raise InputError(path, f"malformed coordinates near line {rows[0][0] if rows else 0}") from None
+
+    V = floats(v_rows, 3)
+    UV = floats(vt_rows, 2) if vt_rows else None
+    F, F_uv = _parse_faces(f_lines, path)
+    F = _resolve_index(F, len(V))
+    if F_uv is not None:
+        if UV is None:
+            raise InputError(path, "faces reference texture coordinates but the file has no 'vt' lines")
+        F_uv = _resolve_index(F_uv, len(UV))
+    else:
+        UV = None
+    texture = None
+    if load_texture and mtllib is not None:
+        tex_path = _texture_from_mtl(path.parent / mtllib)
+        if tex_path is not None:
+            texture = read_image(tex_path)
+    return TexturedMesh(V=V, F=F, UV=UV, F_uv=F_uv, texture=texture).validate(path)
+
+
+def _texture_from_mtl(mtl: Path) -> Path | None:
+    """The first ``map_Kd`` image of an MTL file, or None."""
+    if not mtl.is_file():
+        raise InputError(mtl, "material file referenced by the OBJ not found")
+    for line in mtl.read_text(encoding="utf-8", errors="replace").splitlines():
+        if line.strip().startswith("map_Kd"):
+            return mtl.parent / line.strip().split()[-1]
+    return None
+
+
+# --- PLY scans ----------------------------------------------------------------------------
+
+def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a triangle-mesh PLY (ascii or binary), e.g. a raw scan.
+
+    Returns:
+        V: (n, 3) float64 positions (file units).
+        F: (m, 3) int64 faces.
+    Raises:
+        InputError: missing, unreadable, empty, or with NaN / out-of-range values.
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "scan file not found")
+    if path.stat().st_size == 0:
+        raise InputError(path, "scan file is empty (0 bytes)")
+    try:
+        loaded = trimesh.load(path, file_type="ply", process=False, force="mesh")
+    except Exception as err:  # trimesh raises many types for corrupt files
+        raise InputError(path, f"corrupt or unreadable PLY ({type(err).__name__}: {err})") from None
+    V = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    F = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
+    TexturedMesh(V, F).validate(path)
+    return V, F
+
+
+def write_ply(path: str | Path, V: np.ndarray, F: np.ndarray) -> None:
+    """Write positions ``V (n, 3)`` and faces ``F (m, 3)`` as binary PLY, atomically.
+
+    Positions are stored as float64 (trimesh's exporter writes float32, which
+    would lose the ground-truth precision synthetic scans need).
+    """
+    V = np.ascontiguousarray(V, dtype="<f8").reshape(-1, 3)
+    F = np.asarray(F, dtype=np.int64).reshape(-1, 3)
+    header = ("ply\nformat binary_little_endian 1.0\ncomment written by gpja\n"
+              f"element vertex {len(V)}\nproperty double x\nproperty double y\nproperty double z\n"
+              f"element face {len(F)}\nproperty list uchar int vertex_indices\nend_header\n")
+    faces = np.empty(len(F), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
+    faces["n"] = 3
+    faces["idx"] = F
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(V.tobytes())
+        fh.write(faces.tobytes())

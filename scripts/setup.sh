@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Set up gpja in ./.venv: system library check, torch CPU build, pinned package set.
+# Idempotent: re-running only installs what is missing.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# Open3D's shared library links libusb-1.0, which Debian does not install by default.
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+        echo "setup: installing libusb-1.0-0 (needed by Open3D)"
+        apt-get update -qq && apt-get install -y -qq libusb-1.0-0 >/dev/null
+    else
+        echo "setup: Open3D needs libusb-1.0; install it first (Debian/Ubuntu: sudo apt-get install libusb-1.0-0)" >&2
+        exit 1
+    fi
+fi
+
+PY=${PYTHON:-python3}
+if ! "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+    echo "setup: gpja needs Python 3.11 (found $("$PY" --version 2>&1)); set PYTHON=/path/to/python3.11" >&2
+    exit 1
+fi
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+# torch first and exactly: a range or an unpinned dependency would fetch CUDA wheels.
+.venv/bin/python -m pip install -q "torch==2.13.0"
+.venv/bin/python -m pip install -q -e ".[test]"
+echo "setup: ready (.venv)"

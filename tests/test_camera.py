@@ -1,0 +1,106 @@
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from gpja.camera import Camera
+from gpja.errors import InputError
+from tests.conftest import distort_image, make_cameras, smooth_image
+from tests.tolerances import EXACT_F64, IMAGE_ROUNDTRIP_RATIO, UNDISTORT_PX
+
+
+def frontal(distortion=None):
+    K = np.array([[1000.0, 0, 255.5], [0, 1000.0, 255.5], [0, 0, 1]])
+    return Camera.look_at((0, 0, 600), (0, 0, 0), (0, 1, 0), K, 512, 512, distortion=distortion, name="0")
+
+
+def test_project_analytic_pinhole():
+    cam = frontal()
+    uv, z = cam.project(np.array([[0.0, 0, 0], [0, 60, 0], [30, 0, 0]]))
+    # the head frame's +Y is image-up and +X image-right for a camera in front of the face
+    np.testing.assert_allclose(uv, [[255.5, 255.5], [255.5, 155.5], [305.5, 255.5]], atol=EXACT_F64)
+    np.testing.assert_allclose(z, [600, 600, 600], atol=EXACT_F64)
+    np.testing.assert_allclose(cam.center, [0, 0, 600], atol=EXACT_F64)
+
+
+def test_project_matches_opencv():
+    cam = make_cameras()[2]
+    X = np.random.default_rng(0).normal(scale=60, size=(50, 3))
+    rvec, _ = cv2.Rodrigues(cam.R)
+    ref, _ = cv2.projectPoints(X, rvec, cam.t, cam.K, cam.distortion)
+    uv, _ = cam.project(X)
+    np.testing.assert_allclose(uv, ref[:, 0], atol=1e-6)
+
+
+def test_pixel_rays_invert_projection():
+    cam = make_cameras()[1]
+    X = np.random.default_rng(1).normal(scale=50, size=(100, 3))
+    uv, _ = cam.project(X)
+    origins, dirs = cam.pixel_rays(uv)
+    along = origins + dirs * np.linalg.norm(X - origins, axis=1, keepdims=True)
+    np.testing.assert_allclose(along, X, atol=UNDISTORT_PX)
+    np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=EXACT_F64)
+
+
+def test_transformed_keeps_pixels_and_scales_depth():
+    cam = make_cameras()[2]
+    X = np.random.default_rng(2).normal(scale=50, size=(20, 3))
+    s, R, t = 1.7, Rotation.random(random_state=3).as_matrix(), np.array([10.0, -4.0, 250.0])
+    moved = cam.transformed(s, R, t)
+    uv0, z0 = cam.project(X)
+    uv1, z1 = moved.project((s * X) @ R.T + t)
+    np.testing.assert_allclose(uv1, uv0, atol=1e-8)
+    np.testing.assert_allclose(z1, s * z0, atol=1e-8)
+
+
+def test_params_round_trip():
+    cam = make_cameras()[2]
+    back = Camera.from_params(cam.to_params("5"), "5", "params.json")
+    for a in ("K", "Rt", "distortion"):
+        np.testing.assert_array_equal(getattr(back, a), getattr(cam, a))
+    assert (back.width, back.height, back.name) == (cam.width, cam.height, "5")
+
+
+@pytest.mark.parametrize("key", ["K", "Rt", "distortion", "width", "height"])
+def test_params_missing_key_names_file_and_key(key):
+    params = make_cameras()[0].to_params("0")
+    del params[f"0_{key}"]
+    with pytest.raises(InputError, match=rf"cams\.json: view '0': key '0_{key}' missing"):
+        Camera.from_params(params, "0", "cams.json")
+
+
+def test_params_bad_shape():
+    params = make_cameras()[0].to_params("0")
+    params["0_K"] = [[1, 0], [0, 1]]
+    with pytest.raises(InputError, match="shape"):
+        Camera.from_params(params, "0", "cams.json")
+
+
+def test_undistort_image_inverts_distortion():
+    cam = make_cameras(size=128)[0]
+    ideal = smooth_image(cam)
+    distorted = distort_image(cam, ideal)
+    back = cam.undistort_image(distorted)
+    interior = np.s_[8:-8, 8:-8]  # the border holds replicated pixels
+    change = np.abs(distorted[interior] - ideal[interior]).mean()
+    assert change > 1e-3  # distortion did change the image, so the check is not vacuous
+    assert np.abs(back[interior] - ideal[interior]).mean() < IMAGE_ROUNDTRIP_RATIO * change
+
+
+def test_resized_camera_matches_resampled_pixels():
+    cam = frontal()
+    small = cam.resized(128, 128)
+    X = np.random.default_rng(4).normal(scale=50, size=(10, 3))
+    uv, _ = cam.project(X)
+    uv_small, _ = small.project(X)
+    # pixel centres at integers: u_small + 0.5 = (u + 0.5) * 128 / 512
+    np.testing.assert_allclose(uv_small + 0.5, (uv + 0.5) / 4, atol=EXACT_F64)
+
+
+def test_regression_fixed_camera():
+    cam = Camera.look_at((400, 50, 450), (0, 10, 0), (0, 1, 0),
+                         np.array([[800.0, 0, 320], [0, 810.0, 240], [0, 0, 1]]), 640, 480,
+                         distortion=[-0.1, 0.02, 0.001, 0.002, 0.0])
+    uv, z = cam.project(np.array([[10.0, 20.0, 30.0]]))
+    np.testing.assert_allclose(uv, [[302.634998, 228.636027]], atol=1e-4)
+    np.testing.assert_allclose(z, [573.742107], atol=1e-4)

@@ -1,0 +1,55 @@
+import numpy as np
+import pytest
+
+from gpja.errors import InputError
+from gpja.io import atomic_path, link_or_copy, read_image, read_json, read_npz, write_image, write_json, write_npz
+from tests.tolerances import UINT8_STEP
+
+
+def test_atomic_path_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "out" / "result.json"
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("step failed")
+    assert not target.exists()
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_atomic_path_keeps_previous_content_on_failure(tmp_path):
+    target = tmp_path / "a.json"
+    write_json(target, {"kept": True})
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            tmp.write_text("{")
+            raise RuntimeError
+    assert read_json(target) == {"kept": True}
+
+
+def test_image_round_trip_and_corrupt_image(tmp_path):
+    img = np.random.default_rng(0).random((9, 7, 3)).astype(np.float32)
+    write_image(tmp_path / "a.png", img)
+    assert np.abs(read_image(tmp_path / "a.png") - img).max() <= UINT8_STEP / 2 + 1e-6
+    (tmp_path / "bad.jpg").write_bytes(b"\xff\xd8\xff\xe0 truncated")
+    with pytest.raises(InputError, match="bad.jpg: corrupt or unreadable image"):
+        read_image(tmp_path / "bad.jpg")
+    with pytest.raises(InputError, match="image file not found"):
+        read_image(tmp_path / "none.png")
+
+
+def test_json_and_npz_errors(tmp_path):
+    (tmp_path / "c.json").write_text("{not json")
+    with pytest.raises(InputError, match="c.json: corrupt JSON"):
+        read_json(tmp_path / "c.json")
+    write_npz(tmp_path / "a.npz", x=np.arange(3))
+    np.testing.assert_array_equal(read_npz(tmp_path / "a.npz")["x"], np.arange(3))
+    (tmp_path / "b.npz").write_bytes(b"garbage")
+    with pytest.raises(InputError, match="b.npz: corrupt npz"):
+        read_npz(tmp_path / "b.npz")
+
+
+def test_link_or_copy_replaces(tmp_path):
+    (tmp_path / "src.txt").write_text("new")
+    (tmp_path / "dst.txt").write_text("old")
+    link_or_copy(tmp_path / "src.txt", tmp_path / "dst.txt")
+    assert (tmp_path / "dst.txt").read_text() == "new"

@@ -1,0 +1,109 @@
+import numpy as np
+import pytest
+
+from gpja.errors import InputError
+from gpja.mesh import TexturedMesh, read_obj, read_ply, write_obj, write_ply
+from tests.tolerances import EXACT_F64, UINT8_STEP
+
+
+def seamed_cube() -> TexturedMesh:
+    """A unit cube: 8 welded vertices, 12 triangles, a UV atlas with seams (14 UVs)."""
+    V = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.float64)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    F = np.array([[a, b, c] for q in quads for a, b, c in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))])
+    rng = np.random.default_rng(0)
+    UV = rng.random((14, 2))
+    F_uv = rng.integers(0, 14, size=F.shape)
+    tex = rng.random((16, 16, 3)).astype(np.float32)
+    return TexturedMesh(V, F, UV, F_uv, tex)
+
+
+def test_obj_round_trip_is_lossless(tmp_path):
+    mesh = seamed_cube()
+    mesh.V = mesh.V + np.random.default_rng(1).normal(scale=1e-3, size=mesh.V.shape) * np.pi
+    write_obj(tmp_path / "cube.obj", mesh)
+    back = read_obj(tmp_path / "cube.obj")
+    np.testing.assert_array_equal(back.V, mesh.V)  # bit-exact, vertex order kept
+    np.testing.assert_array_equal(back.F, mesh.F)
+    np.testing.assert_array_equal(back.UV, mesh.UV)
+    np.testing.assert_array_equal(back.F_uv, mesh.F_uv)
+    assert len(back.V) == 8  # seams split UVs, never positions
+    assert np.abs(back.texture - mesh.texture).max() <= UINT8_STEP
+    assert (tmp_path / "cube.mtl").read_text().strip().endswith("map_Kd texture.png")
+
+
+def test_obj_can_reference_a_shared_texture(tmp_path):
+    mesh = seamed_cube()
+    write_obj(tmp_path / "template.obj", mesh)
+    mesh.texture = None
+    write_obj(tmp_path / "1_neutral.obj", mesh)  # references template's texture.png, writes no image
+    back = read_obj(tmp_path / "1_neutral.obj")
+    assert back.texture is not None and back.texture.shape == (16, 16, 3)
+
+
+def test_obj_polygons_negative_indices_and_vertex_colours(tmp_path):
+    (tmp_path / "q.obj").write_text(
+        "v 0 0 0 1 0 0\nv 1 0 0 1 0 0\nv 1 1 0 1 0 0\nv 0 1 0 1 0 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "f -4/-4 -3/-3 -2/-2 -1/-1\n")
+    m = read_obj(tmp_path / "q.obj")
+    np.testing.assert_array_equal(m.F, [[0, 1, 2], [0, 2, 3]])
+    np.testing.assert_array_equal(m.F_uv, [[0, 1, 2], [0, 2, 3]])
+
+
+def test_edge_lengths_analytic():
+    m = TexturedMesh(np.array([[0.0, 0, 0], [3, 0, 0], [0, 4, 0]]), np.array([[0, 1, 2]]))
+    np.testing.assert_allclose(np.sort(m.edge_lengths()), [3, 4, 5], atol=EXACT_F64)
+    np.testing.assert_allclose(m.face_normals(), [[0, 0, 1]], atol=EXACT_F64)
+
+
+@pytest.mark.parametrize(
+    "text, problem",
+    [
+        ("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", "out of range"),
+        ("# nothing\n", "empty mesh"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1 2/1 3/1\n", "no 'vt'"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 x 3\n", "malformed face"),
+    ],
+)
+def test_obj_bad_input_names_file(tmp_path, text, problem):
+    path = tmp_path / "bad.obj"
+    path.write_text(text)
+    with pytest.raises(InputError, match=problem) as err:
+        read_obj(path)
+    assert str(path) in str(err.value)
+
+
+def test_ply_round_trip_exact(tmp_path):
+    V = np.random.default_rng(2).normal(scale=80, size=(50, 3))
+    F = np.random.default_rng(3).integers(0, 50, size=(70, 3))
+    write_ply(tmp_path / "s.ply", V, F)
+    V2, F2 = read_ply(tmp_path / "s.ply")
+    np.testing.assert_array_equal(V2, V)
+    np.testing.assert_array_equal(F2, F)
+
+
+def test_ply_bad_input(tmp_path):
+    (tmp_path / "empty.ply").write_bytes(b"")
+    with pytest.raises(InputError, match="empty.ply: scan file is empty"):
+        read_ply(tmp_path / "empty.ply")
+    (tmp_path / "junk.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n")
+    with pytest.raises(InputError, match="junk.ply"):
+        read_ply(tmp_path / "junk.ply")
+    with pytest.raises(InputError, match="not found"):
+        read_ply(tmp_path / "missing.ply")
+    write_ply(tmp_path / "nan.ply", np.array([[0.0, 0, 0], [np.nan, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+    with pytest.raises(InputError, match="NaN"):
+        read_ply(tmp_path / "nan.ply")
+    write_ply(tmp_path / "nofaces.ply", np.zeros((0, 3)), np.zeros((0, 3), dtype=int))
+    with pytest.raises(InputError, match="empty mesh"):
+        read_ply(tmp_path / "nofaces.ply")
+
+
+def test_regression_obj_text(tmp_path):
+    m = TexturedMesh(np.array([[0.1, 0.2, 0.3], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]),
+                     np.array([[0, 0], [1, 0], [0, 1.0]]), np.array([[0, 1, 2]]))
+    write_obj(tmp_path / "t.obj", m, texture_name=None)
+    lines = (tmp_path / "t.obj").read_text().splitlines()
+    assert lines[1:] == ["v 0.10000000000000001 0.20000000000000001 0.29999999999999999", "v 1 0 0", "v 0 1 0",
+                         "vt 0 0", "vt 1 0", "vt 0 1", "f 1/1 2/2 3/3"]

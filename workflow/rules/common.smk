@@ -1,0 +1,65 @@
+# Paths and small helpers shared by the rules. Keep this file small: logic belongs in gpja.
+import json
+import shlex
+
+DATASET = config["dataset"]
+SUBJECTS = [str(s) for s in config["subjects"]]
+EXPRESSIONS = list(config["expressions"])
+DATA = config["data"]
+SYNTH = config["synthetic"]
+RESULTS = f"results/{DATASET}"
+LOGS = f"logs/{DATASET}"
+BENCH = f"benchmarks/{DATASET}"
+
+
+wildcard_constraints:
+    subject="|".join(SUBJECTS),
+    expression="|".join(EXPRESSIONS),
+
+
+def params_json(subject, expression):
+    return f"{DATA['images_root']}/{subject}/{expression}/params.json"
+
+
+def scan_ply(subject, expression):
+    return f"{DATA['scans_root']}/{subject}/{expression}.ply"
+
+
+def expression_inputs(wildcards):
+    """The files one expression is read from (synthesised first when the dataset is)."""
+    files = {
+        "params": params_json(wildcards.subject, wildcards.expression),
+        "scan": scan_ply(wildcards.subject, wildcards.expression),
+    }
+    if DATA.get("rt_scale"):
+        files["rt_scale"] = DATA["rt_scale"]
+    return files
+
+
+def data_args():
+    """Command-line options of `gpja` that say where the dataset is."""
+    args = ["--images-root", DATA["images_root"], "--scans-root", DATA["scans_root"]]
+    if DATA.get("rt_scale"):
+        args += ["--rt-scale", DATA["rt_scale"]]
+    if DATA.get("views"):
+        args += ["--views", *map(str, DATA["views"])]
+    if DATA.get("max_image_size"):
+        args += ["--max-image-size", str(DATA["max_image_size"])]
+    return shlex.join(args)
+
+
+def synth_settings():
+    """The synthetic generator's settings as one JSON argument (seed included)."""
+    keys = ["seed", "image_size", "n_views", "camera_distance_mm", "scan_voxel_mm",
+            "scan_noise_mm", "distortion", "supersample", "raw_variant"]
+    settings = {k: SYNTH[k] for k in keys if k in SYNTH}
+    settings["expressions"] = EXPRESSIONS
+    return shlex.quote(json.dumps(settings, sort_keys=True))
+
+
+def all_targets(wildcards):
+    """Every output the current stages produce."""
+    targets = expand(f"{RESULTS}/{{subject}}/data/{{expression}}.json", subject=SUBJECTS, expression=EXPRESSIONS)
+    if SYNTH["enabled"]:
+        targets += expand(f"{RESULTS}/{{subject}}/contact_sheet.png", subject=SUBJECTS)
+    return targets

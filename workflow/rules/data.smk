@@ -1,0 +1,58 @@
+# Stage 1, data: synthesise the default benchmark (FaceScape layout) and check/undistort every expression.
+
+if SYNTH["enabled"]:
+
+    rule synthesize_subject:
+        """Procedural head, expressions, scans, multiview images and ground truth of one subject."""
+        output:
+            params=[params_json("{subject}", e) for e in EXPRESSIONS],
+            scans=[scan_ply("{subject}", e) for e in EXPRESSIONS],
+            ground_truth=[f"{DATA['ground_truth_root']}/{{subject}}/{e}.npz" for e in EXPRESSIONS],
+            subject_info=f"{DATA['ground_truth_root']}/{{subject}}/subject.json",
+            contact_sheet=report(
+                f"{RESULTS}/{{subject}}/contact_sheet.png",
+                caption="../report/contact_sheet.rst",
+                category="Data",
+                labels={"subject": "{subject}", "figure": "contact sheet"},
+            ),
+        params:
+            settings=synth_settings(),
+            images_root=DATA["images_root"],
+            scans_root=DATA["scans_root"],
+            gt_root=DATA["ground_truth_root"],
+            raw_root=SYNTH.get("raw_root", f"data/{DATASET}/raw"),
+        log:
+            f"{LOGS}/{{subject}}/synthesize_subject.log",
+        benchmark:
+            f"{BENCH}/{{subject}}/synthesize_subject.tsv"
+        threads: 2
+        resources:
+            mem_mb=4000,
+            runtime=10,
+        shell:
+            "gpja synth --subject {wildcards.subject} --settings {params.settings}"
+            " --images-root {params.images_root} --scans-root {params.scans_root}"
+            " --ground-truth-root {params.gt_root} --raw-root {params.raw_root}"
+            " --contact-sheet {output.contact_sheet} > {log} 2>&1"
+
+
+rule check_expression:
+    """Load one expression through the FaceScape reader, undistort its views once, summarise it."""
+    input:
+        unpack(expression_inputs),
+    output:
+        f"{RESULTS}/{{subject}}/data/{{expression}}.json",
+    params:
+        data=data_args(),
+        cache=f"{RESULTS}/undistorted",
+    log:
+        f"{LOGS}/{{subject}}/check_expression/{{expression}}.log",
+    benchmark:
+        f"{BENCH}/{{subject}}/check_expression/{{expression}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=5,
+    shell:
+        "gpja check-data --subject {wildcards.subject} --expression {wildcards.expression}"
+        " {params.data} --cache-dir {params.cache} --output {output} > {log} 2>&1"
