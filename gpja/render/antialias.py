@@ -1,0 +1,260 @@
+"""Analytic edge antialiasing, so coverage changes give vertex gradients.
+
+In the spirit of nvdiffrast's ``antialias``: for every pair of horizontally or
+vertically adjacent pixels covered by different triangles (or one triangle and
+the background), the nearer triangle is checked for a *silhouette* edge (a
+boundary edge, or one whose two faces face opposite ways in that view) that
+crosses the segment between the two pixel centres. Where one does, the two
+colours are blended by how far the edge lies from the pixel boundary, and the
+crossing point is computed in torch from the projected edge vertices, so the
+blend's derivative moves the silhouette. Finding the pairs is integer work
+done by a numba kernel; the blend is a small differentiable torch step.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+import torch
+
+from gpja.render.fragments import Fragments
+
+
+def face_adjacency(faces: np.ndarray) -> np.ndarray:
+    """Neighbouring face across each edge.
+
+    Args:
+        faces: (m, 3) int vertex indices; edge k joins corners k and (k+1) % 3.
+    Returns:
+        (m, 3) int64 index of the face sharing edge k, -1 on boundary (and
+        non-manifold) edges.
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    m = len(faces)
+    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    key = np.sort(half, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    order = np.argsort(inverse, kind="stable")
+    adj = np.full(3 * m, -1, dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pair = counts[inverse[order[starts]]] == 2
+    a = order[starts[pair]]
+    b = order[starts[pair] + 1]
+    adj[a] = b // 3
+    adj[b] = a // 3
+    return adj.reshape(m, 3)
+
+
+@nb.njit(cache=True, parallel=True)
+def _facing_kernel(screen, faces, out):
+    """out[b, f]: face f is front-facing in view b (negative area in y-down pixels)."""
+    for b in nb.prange(screen.shape[0]):
+        for f in range(faces.shape[0]):
+            x0, y0 = screen[b, faces[f, 0], 0], screen[b, faces[f, 0], 1]
+            x1, y1 = screen[b, faces[f, 1], 0], screen[b, faces[f, 1], 1]
+            x2, y2 = screen[b, faces[f, 2], 0], screen[b, faces[f, 2], 1]
+            out[b, f] = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0) < 0.0
+
+
+#: How many faces the search may cross along a pixel segment before giving up.
+MAX_WALK = 16
+
+
+@nb.njit(cache=True, inline="always")
+def _segment_crossing(screen, b, va, vb, ox, oy, qx, qy):
+    """Parameter t of the segment o->q where it crosses edge (va, vb); -1 if it misses."""
+    xa, ya = screen[b, va, 0], screen[b, va, 1]
+    xb, yb = screen[b, vb, 0], screen[b, vb, 1]
+    if oy == qy:  # horizontal pair: the edge must span the row y = oy
+        if (ya - oy) * (yb - oy) > 0.0 or ya == yb:
+            return -1.0
+        return (xa + (oy - ya) * (xb - xa) / (yb - ya) - ox) * (qx - ox)
+    if (xa - ox) * (xb - ox) > 0.0 or xa == xb:
+        return -1.0
+    return (ya + (ox - xa) * (yb - ya) / (xb - xa) - oy) * (qy - oy)
+
+
+@nb.njit(cache=True)
+def _find_edge(screen, facing, b, faces, adj, f, ox, oy, qx, qy):
+    """The silhouette edge the segment from pixel centre o (inside face f) to q leaves through.
+
+    Walks from f across non-silhouette edges along the segment, because near a
+    silhouette the triangle under the pixel centre is often not the one whose
+    edge forms the outline (grazing triangles are thin in projection).
+    Returns the edge's two vertex indices, or (-1, -1).
+    """
+    entry = -1
+    t_prev = -1e-9
+    for _ in range(MAX_WALK):
+        front = facing[b, f]
+        best_k = -1
+        best_t = 2.0
+        for k in range(3):
+            if k == entry:
+                continue
+            t = _segment_crossing(screen, b, faces[f, k], faces[f, (k + 1) % 3], ox, oy, qx, qy)
+            if t >= t_prev and t < best_t:
+                best_t = t
+                best_k = k
+        if best_k < 0 or best_t > 1.0:
+            return -1, -1
+        g = adj[f, best_k]
+        if g < 0 or facing[b, g] != front:
+            return faces[f, best_k], faces[f, (best_k + 1) % 3]
+        entry = -1
+        for k in range(3):
+            if adj[g, k] == f:
+                entry = k
+        f = g
+        t_prev = best_t
+    return -1, -1
+
+
+@nb.njit(cache=True, parallel=True)
+def _edge_pairs_kernel(tri_id, depth, screen, facing, faces, adj, counts, capacity, out):
+    n_views, height, width = tri_id.shape
+    for b in nb.prange(n_views):
+        n = 0
+        base = b * capacity
+        for axis in range(2):
+            for y in range(height - axis):
+                for x in range(width - 1 + axis):
+                    qy = y + axis
+                    qx = x + 1 - axis
+                    t0 = tri_id[b, y, x]
+                    t1 = tri_id[b, qy, qx]
+                    if t0 == t1:
+                        continue
+                    if t0 >= 0 and t1 >= 0 and facing[b, t0] == facing[b, t1] and (
+                            adj[t0, 0] == t1 or adj[t0, 1] == t1 or adj[t0, 2] == t1):
+                        continue  # neighbours on one sheet: no silhouette between them
+                    if t1 < 0 or (t0 >= 0 and depth[b, y, x] <= depth[b, qy, qx]):
+                        f, ox, oy, px, py = t0, x, y, qx, qy  # occluder at the first pixel
+                    else:
+                        f, ox, oy, px, py = t1, qx, qy, x, y
+                    va, vb = _find_edge(screen, facing, b, faces, adj, f, float(ox), float(oy), float(px), float(py))
+                    if va < 0:
+                        continue
+                    if n < capacity:  # past capacity only count; the caller retries larger
+                        r = base + n
+                        out[r, 0] = (b * height + oy) * width + ox
+                        out[r, 1] = (b * height + py) * width + px
+                        out[r, 2] = b
+                        out[r, 3] = va
+                        out[r, 4] = vb
+                        out[r, 5] = axis
+                    n += 1
+        counts[b] = n
+
+
+@dataclass
+class EdgePairs:
+    """Pixel pairs straddling a silhouette edge, found once per rasterisation.
+
+    Attributes (all (E,) int64 tensors):
+        occluder, other: flat pixel indices (``(b * H + y) * W + x``) of the
+            pixel covered by the near triangle and of its neighbour.
+        view: the view index b.
+        va, vb: the silhouette edge's vertex indices.
+        axis: 0 for a horizontal pair, 1 for a vertical one.
+    """
+
+    occluder: torch.Tensor
+    other: torch.Tensor
+    view: torch.Tensor
+    va: torch.Tensor
+    vb: torch.Tensor
+    axis: torch.Tensor
+
+
+def find_edge_pairs(frags: Fragments, screen: torch.Tensor, faces: torch.Tensor, adjacency: np.ndarray) -> EdgePairs:
+    """Find the pixel pairs the antialiasing pass blends (no gradient)."""
+    scr = np.ascontiguousarray(screen.detach().cpu().numpy(), dtype=np.float64)
+    fcs = np.ascontiguousarray(faces.detach().cpu().numpy(), dtype=np.int64)
+    n_views = scr.shape[0]
+    counts = np.zeros(n_views, dtype=np.int64)
+    facing = np.empty((n_views, len(fcs)), dtype=np.bool_)
+    _facing_kernel(scr, fcs, facing)
+    height, width = frags.tri_id.shape[1:]
+    capacity = 8 * (height + width)  # a few outline lengths per view; retried if exceeded
+    while True:
+        out = np.empty((n_views * capacity, 6), dtype=np.int64)
+        _edge_pairs_kernel(frags.tri_id, frags.depth, scr, facing, fcs, adjacency, counts, capacity, out)
+        if counts.max() <= capacity:
+            break
+        capacity = int(counts.max())
+    out = np.concatenate([out[b * capacity : b * capacity + counts[b]] for b in range(n_views)])
+    cols = torch.from_numpy(out).to(screen.device).unbind(1)
+    return EdgePairs(*cols)
+
+
+def edge_crossings(screen: torch.Tensor, pairs: EdgePairs, width: int, height: int) -> torch.Tensor:
+    """Where each silhouette edge crosses its pixel pair, from the occluder's centre.
+
+    Returns:
+        (E,) in [0, 1]: 0 at the occluder pixel's centre, 1 at the other's.
+        Differentiable in ``screen`` (B, n, 3).
+    """
+    n_vertices = screen.shape[1]
+    flat = screen.reshape(-1, 3)
+    a = flat[pairs.view * n_vertices + pairs.va]
+    b = flat[pairs.view * n_vertices + pairs.vb]
+    rem_o = pairs.occluder % (width * height)
+    rem_q = pairs.other % (width * height)
+    ox, oy = (rem_o % width).to(screen.dtype), (rem_o // width).to(screen.dtype)
+    qx, qy = (rem_q % width).to(screen.dtype), (rem_q // width).to(screen.dtype)
+    horizontal = pairs.axis == 0
+    # along x for horizontal pairs, along y for vertical ones
+    u_a = torch.where(horizontal, a[:, 0], a[:, 1])
+    u_b = torch.where(horizontal, b[:, 0], b[:, 1])
+    w_a = torch.where(horizontal, a[:, 1], a[:, 0])
+    w_b = torch.where(horizontal, b[:, 1], b[:, 0])
+    o_u = torch.where(horizontal, ox, oy)
+    o_w = torch.where(horizontal, oy, ox)
+    step = torch.where(horizontal, qx - ox, qy - oy)
+    crossing = u_a + (o_w - w_a) * (u_b - u_a) / (w_b - w_a)
+    return ((crossing - o_u) * step).clamp(0.0, 1.0)
+
+
+def blend_across_edges(values: torch.Tensor, t: torch.Tensor, occluder_row: torch.Tensor,
+                       other_row: torch.Tensor) -> torch.Tensor:
+    """Blend pixel values across silhouette edges (the antialiasing step).
+
+    The occluding triangle covers its pixel along the pair's axis from the far
+    side up to the edge at ``t``: for t > 1/2 it spills into the neighbour by
+    t - 1/2 of a pixel, for t < 1/2 it leaves 1/2 - t of its own pixel to the
+    neighbour's surface. Works on a render's sparse pixel table.
+
+    Args:
+        values: (R, C) values of the render's pixel rows (background filled in).
+        t: (E,) edge crossings from ``edge_crossings`` (differentiable).
+        occluder_row, other_row: (E,) int64 rows of each pair's two pixels.
+    Returns:
+        (R, C) antialiased values, differentiable in ``values`` and ``t``.
+    """
+    t = t[:, None]
+    c_occ = values[occluder_row]
+    c_oth = values[other_row]
+    into_other = torch.relu(t - 0.5) * (c_occ - c_oth)
+    into_occluder = torch.relu(0.5 - t) * (c_oth - c_occ)
+    return values.index_add(0, other_row, into_other).index_add(0, occluder_row, into_occluder)
+
+
+def antialias(values: torch.Tensor, screen: torch.Tensor, pairs: EdgePairs, occluder_row: torch.Tensor,
+              other_row: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    """Antialias a sparse pixel table; gradients reach the silhouette edges' vertices.
+
+    Args:
+        values: (R, C) values of the render's pixel rows (background filled in).
+        screen: (B, n, 3) projected vertices the render was rasterised from.
+        pairs: from ``find_edge_pairs`` for the same rasterisation.
+        occluder_row, other_row: (E,) int64 rows of ``values`` of each pair's pixels.
+        width, height: image size in pixels.
+    Returns:
+        (R, C) antialiased values.
+    """
+    if len(pairs.occluder) == 0:
+        return values
+    return blend_across_edges(values, edge_crossings(screen, pairs, width, height), occluder_row, other_row)

@@ -1,0 +1,103 @@
+"""The project's own promises: README <-> CI agreement, pinned environment, config schema, DAG."""
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import jsonschema
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+
+
+def readme_commands() -> list[str]:
+    block = re.search(r"<!-- quick-start -->\s*```(?:bash|sh)?\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+    assert block, "README.md has no quick-start block"
+    return [line for line in block.group(1).splitlines() if line.strip() and not line.startswith("#")]
+
+
+def test_readme_has_exactly_two_commands_and_ci_runs_the_test_one():
+    commands = readme_commands()
+    assert len(commands) == 2
+    main, tests = commands
+    assert main.rstrip().endswith("snakemake --cores 2")
+    assert "pytest" in tests
+    ci = [line for line in (ROOT / ".ci/run").read_text().splitlines() if line and not line.startswith(("#", "set ", "cd "))]
+    assert ci == [tests]
+
+
+def test_conda_env_mirrors_pinned_pip_set():
+    pins = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = set(pins["dependencies"]) | set(pins["optional-dependencies"]["test"])
+    assert all("==" in d for d in declared), "every dependency must be pinned exactly"
+    assert "torch==2.13.0" in declared and not any(d.startswith("torchvision") for d in declared)
+    env = yaml.safe_load((ROOT / "envs/gpja.yaml").read_text())
+    pip = next(d["pip"] for d in env["dependencies"] if isinstance(d, dict))
+    assert set(pip) == declared
+
+
+@pytest.mark.parametrize("name", ["config.yaml", "ci.yaml", "facescape.yaml"])
+def test_configs_validate_against_schema(name):
+    schema = yaml.safe_load((ROOT / "workflow/schemas/config.schema.yaml").read_text())
+    jsonschema.validate(yaml.safe_load((ROOT / "config" / name).read_text()), schema)
+
+
+def test_schema_rejects_bad_config():
+    schema = yaml.safe_load((ROOT / "workflow/schemas/config.schema.yaml").read_text())
+    cfg = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    cfg["synthetic"]["image_size"] = 8
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(cfg, schema)
+
+
+def copy_workflow(dst: Path) -> Path:
+    for item in ("Snakefile", "workflow", "config"):
+        src = ROOT / item
+        (shutil.copytree if src.is_dir() else shutil.copy)(src, dst / item)
+    return dst
+
+
+def test_dry_run_schedules_synthesis_and_checks(tmp_path):
+    work = copy_workflow(tmp_path)
+    out = subprocess.run([*SNAKEMAKE, "-n", "--cores", "2", "--quiet", "rules"], cwd=work,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    counts = dict(re.findall(r"^(\w+)\s+(\d+)\s*$", out.stdout, re.M))
+    cfg = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    n_subjects, n_expressions = len(cfg["subjects"]), len(cfg["expressions"])
+    assert int(counts["synthesize_subject"]) == n_subjects
+    assert int(counts["check_expression"]) == n_subjects * n_expressions
+
+
+def test_invalid_config_stops_before_any_rule(tmp_path):
+    work = copy_workflow(tmp_path)
+    out = subprocess.run([*SNAKEMAKE, "-n", "--cores", "1", "--config", "dataset=bad/name"], cwd=work,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode != 0
+    assert "dataset" in out.stderr + out.stdout
+
+
+@pytest.mark.slow
+def test_ci_workflow_runs_end_to_end(tmp_path):
+    """The real DAG on the CI configuration: synthesis, then every expression through the reader."""
+    work = copy_workflow(tmp_path)
+    env_bin = str(Path(sys.executable).parent)
+    out = subprocess.run([*SNAKEMAKE, "--cores", "2", "--configfile", "config/ci.yaml"], cwd=work,
+                         capture_output=True, text=True, timeout=900,
+                         env={**__import__("os").environ, "PATH": env_bin + ":" + __import__("os").environ["PATH"]})
+    assert out.returncode == 0, out.stderr[-3000:]
+    cfg = yaml.safe_load((ROOT / "config/ci.yaml").read_text())
+    for expression in cfg["expressions"]:
+        summary = yaml.safe_load((work / f"results/{cfg['dataset']}/S01/data/{expression}.json").read_text())
+        assert len(summary["views"]) == cfg["synthetic"]["n_views"]
+        assert all(v["scan_fraction_in_view"] > 0.5 for v in summary["views"])
+        assert 0.3 < summary["scan"]["median_edge_mm"] < 1.2
+    assert (work / f"results/{cfg['dataset']}/S01/contact_sheet.png").is_file()
+    assert (work / f"logs/{cfg['dataset']}/S01/synthesize_subject.log").is_file()
+    assert (work / f"benchmarks/{cfg['dataset']}/S01/synthesize_subject.tsv").is_file()
