@@ -53,3 +53,12 @@ def test_link_or_copy_replaces(tmp_path):
     (tmp_path / "dst.txt").write_text("old")
     link_or_copy(tmp_path / "src.txt", tmp_path / "dst.txt")
     assert (tmp_path / "dst.txt").read_text() == "new"
+
+
+def test_atomic_outputs_get_the_usual_file_mode(tmp_path):
+    import os
+
+    write_json(tmp_path / "m.json", {})
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "m.json").stat().st_mode & 0o777 == 0o666 & ~umask

@@ -15,3 +15,11 @@ UINT8_STEP = 1.0 / 255.0 + 1e-6
 SPHERE_QUADRATURE = 2e-3
 #: Ground-truth landmarks to scan surface, mm (scan is a 0.5-1 mm triangulation).
 LANDMARK_TO_SCAN_MM = 1.0
+#: Renderer depth vs Open3D ray casting, median over pixels, mm (issue: <= 1e-3).
+DEPTH_VS_RAYCAST_MM = 1e-3
+#: Interpolated vertex normals vs Open3D face normals on a fine sphere, median, degrees.
+NORMAL_VS_RAYCAST_DEG = 1.0
+#: Fraction of pixels whose triangle id may differ from Open3D's (ties on edges).
+TRI_ID_MISMATCH = 1e-3
+#: Relative error of finite-difference vs autograd vertex gradients.
+FD_RELATIVE = 1e-3

@@ -30,8 +30,10 @@ def face_adjacency(faces: np.ndarray) -> np.ndarray:
         (m, 3) int64 index of the face sharing edge k, -1 on boundary (and
         non-manifold) edges.
     """
-    faces = np.asarray(faces, dtype=np.int64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     m = len(faces)
+    if m == 0:
+        return np.zeros((0, 3), dtype=np.int64)
     half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
     key = np.sort(half, axis=1)
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
