@@ -98,6 +98,39 @@ def cmd_check_data(args: argparse.Namespace) -> None:
     write_json(args.output, summary)
 
 
+def cmd_scan_targets(args: argparse.Namespace) -> None:
+    from gpja.data.facescape import load_expression
+    from gpja.io import write_image
+    from gpja.render import render_scan_targets, resolve_backend
+
+    data = load_expression(args.images_root, args.subject, args.expression, views=args.views,
+                           scans_root=args.scans_root, rt_scale_path=args.rt_scale,
+                           cache_dir=args.cache_dir, max_image_size=args.max_image_size)
+    sizes = {(v.camera.width, v.camera.height) for v in data.views}
+    if len(sizes) != 1:
+        raise InputError(args.images_root, f"{args.subject}/{args.expression}: views differ in size {sorted(sizes)}; "
+                                           "set data.max_image_size so they share one")
+    backend = resolve_backend(args.backend)
+    start = time.perf_counter()
+    targets = render_scan_targets(data.scan.V, data.scan.F, data.cameras, cache_path=args.output, backend=backend)
+    covered = targets["coverage"][..., 0].numpy()
+    print(f"scan-targets: {args.subject}/{args.expression}: {len(data.views)} views, backend {backend}, "
+          f"{time.perf_counter() - start:.2f} s, scan covers {100 * covered.mean():.1f}% of the pixels", flush=True)
+    for view, cov in zip(data.views, covered):
+        if cov.sum() == 0:
+            logging.warning("view %s: the scan covers no pixel of this view", view.name)
+    if args.preview:
+        # one row per view set: reference image | scan normals | scan depth (near = bright)
+        normal = (0.5 + 0.5 * targets["normal"].numpy()) * covered[..., None]
+        rows = []
+        for view, n, d, cov in zip(data.views, normal, targets["depth"][..., 0].numpy(), covered):
+            full = cov > 0.99  # silhouette pixels blend depth with the 0 background
+            lo, hi = np.percentile(d[full], [1, 99]) if full.any() else (0.0, 1.0)  # per view: near = bright
+            shade = np.clip(0.15 + 0.85 * (hi - d) / max(hi - lo, 1e-6), 0, 1) * cov
+            rows.append(np.concatenate([view.image, n, np.repeat(shade[..., None], 3, -1)], axis=1))
+        write_image(args.preview, np.concatenate(rows, axis=0))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpja", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -120,6 +153,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
     p.add_argument("--output", required=True, help="summary JSON")
     p.set_defaults(func=cmd_check_data)
+
+    p = sub.add_parser("scan-targets", help="render an expression's scan depth/normal/coverage targets once per view set")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--expression", required=True)
+    _add_data_args(p)
+    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
+    p.add_argument("--backend", default="auto", help="render backend: auto | cpu | nvdiffrast")
+    p.add_argument("--output", required=True, help="targets .npz")
+    p.add_argument("--preview", default=None, help="PNG: reference | scan normals | scan depth, one row per view")
+    p.set_defaults(func=cmd_scan_targets)
     return parser
 
 

@@ -9,6 +9,7 @@ import tomllib
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import pytest
 import yaml
 
@@ -73,6 +74,7 @@ def test_dry_run_schedules_synthesis_and_checks(tmp_path):
     n_subjects, n_expressions = len(cfg["subjects"]), len(cfg["expressions"])
     assert int(counts["synthesize_subject"]) == n_subjects
     assert int(counts["check_expression"]) == n_subjects * n_expressions
+    assert int(counts["render_scan_targets"]) == n_subjects * n_expressions
 
 
 def test_invalid_config_stops_before_any_rule(tmp_path):
@@ -99,5 +101,11 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         assert all(v["scan_fraction_in_view"] > 0.5 for v in summary["views"])
         assert 0.3 < summary["scan"]["median_edge_mm"] < 1.2
     assert (work / f"results/{cfg['dataset']}/S01/contact_sheet.png").is_file()
+    for expression in cfg["expressions"]:
+        with np.load(work / f"results/{cfg['dataset']}/S01/targets/{expression}.npz") as targets:
+            size = cfg["synthetic"]["image_size"]
+            assert targets["depth"].shape == (cfg["synthetic"]["n_views"], size, size, 1)
+            assert 0.05 < targets["coverage"].mean() < 0.9  # the head, not empty, not everything
+            assert 400 < np.median(targets["depth"][targets["coverage"][..., 0] > 0.99]) < 800  # rig ~600 mm away
     assert (work / f"logs/{cfg['dataset']}/S01/synthesize_subject.log").is_file()
     assert (work / f"benchmarks/{cfg['dataset']}/S01/synthesize_subject.tsv").is_file()

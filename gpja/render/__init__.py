@@ -10,8 +10,10 @@ Public ops, nvdiffrast-style:
     render_views            the paper's passes: color (F_S), depth (F_D), normal (F_N), mask
     image_l1                exact full-image L1 of a sparse render against a dense target
     render_scan_targets     a fixed scan's depth/normal images, rendered once and cached
+    renderer(name)          the render_views of a backend: "auto" | "cpu" | "nvdiffrast" (experimental)
 """
-from gpja.render.antialias import antialias, face_adjacency, find_edge_pairs
+from gpja.render.backend import BACKENDS, renderer, resolve_backend
+from gpja.render.silhouettes import antialias, face_adjacency, find_edge_pairs
 from gpja.render.fragments import Fragments, rasterize_fragments
 from gpja.render.interpolate import interpolate_attribute, interpolate_rows, scatter_to_image
 from gpja.render.passes import PASSES, RenderOutput, Topology, image_l1, render_scan_targets, render_views, vertex_normals
@@ -20,7 +22,7 @@ from gpja.render.rasterize import rasterize
 from gpja.render.texture import sample_texture
 
 __all__ = [
-    "Fragments", "PASSES", "RenderOutput", "Topology", "image_l1", "antialias", "face_adjacency", "find_edge_pairs", "interpolate_attribute",
+    "BACKENDS", "renderer", "resolve_backend", "Fragments", "PASSES", "RenderOutput", "Topology", "image_l1", "antialias", "face_adjacency", "find_edge_pairs", "interpolate_attribute",
     "interpolate_rows", "project_to_screen", "rasterize", "rasterize_fragments", "render_scan_targets",
     "render_views", "sample_texture", "scatter_to_image", "vertex_normals",
 ]

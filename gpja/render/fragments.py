@@ -27,6 +27,7 @@ class Fragments:
         face: (P,) int64 face index of each covered pixel.
         bary: (P, 3) perspective-correct barycentrics, differentiable.
         z: (P,) camera depth in mm, differentiable.
+        corners: (P, 3) int64 vertex indices of each pixel's triangle (``faces[face]``).
     """
 
     tri_id: np.ndarray
@@ -35,6 +36,7 @@ class Fragments:
     face: torch.Tensor
     bary: torch.Tensor
     z: torch.Tensor
+    corners: torch.Tensor
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -61,10 +63,11 @@ def rasterize_fragments(screen: torch.Tensor, faces: torch.Tensor, height: int, 
     rem = pixel % (height * width)
     py = (rem // width).to(screen.dtype)
     px = (rem % width).to(screen.dtype)
-    corners = faces.to(device)[face] + (view * n_vertices)[:, None]  # (P, 3) rows of screen.reshape(-1, 3)
+    vertex_corners = faces.to(device)[face]
+    corners = vertex_corners + (view * n_vertices)[:, None]  # (P, 3) rows of screen.reshape(-1, 3)
     view_starts = torch.from_numpy(np.searchsorted(flat, np.arange(n_views + 1) * height * width).astype(np.int64))
     bary, z = perspective_barycentrics(screen.reshape(-1, 3), corners, px, py, view_starts)
-    return Fragments(tri_id, depth, pixel, face, bary, z)
+    return Fragments(tri_id, depth, pixel, face, bary, z, vertex_corners)
 
 
 @nb.njit(cache=True, parallel=True)

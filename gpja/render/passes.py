@@ -14,9 +14,9 @@ import torch
 
 from gpja.camera import Camera
 from gpja.lighting import shade_lambertian
-from gpja.render.antialias import blend_across_edges, edge_crossings, face_adjacency, find_edge_pairs
+from gpja.render.silhouettes import blend_across_edges, edge_crossings, face_adjacency, find_edge_pairs
 from gpja.render.fragments import Fragments, rasterize_fragments
-from gpja.render.interpolate import interpolate_attribute
+from gpja.render.interpolate import interpolate_attribute, interpolate_rows
 from gpja.render.project import project_to_screen
 from gpja.render.texture import sample_texture
 
@@ -57,7 +57,16 @@ def vertex_normals(V: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     tri = V[faces]
     face_n = torch.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=1)
     acc = torch.zeros_like(V).index_add_(0, faces.reshape(-1), face_n.repeat_interleave(3, dim=0))
-    return acc / acc.norm(dim=1, keepdim=True).clamp_min(1e-12)
+    return normalize_rows(acc)
+
+
+def normalize_rows(x: torch.Tensor) -> torch.Tensor:
+    """Rows of ``x`` (k, 3) scaled to unit length (zero rows stay zero).
+
+    rsqrt of the squared norm: cheaper than ``torch.linalg.vector_norm`` on CPU,
+    forward and backward.
+    """
+    return x * torch.rsqrt((x * x).sum(dim=1, keepdim=True).clamp_min(1e-24))
 
 
 def check_render_input(V: torch.Tensor, faces: torch.Tensor, cameras: Sequence[Camera]) -> None:
@@ -167,8 +176,7 @@ def render_views(
     backgrounds: dict[str, torch.Tensor] = {}
     normals = None
     if "color" in passes or "normal" in passes:
-        normals = interpolate_attribute(vertex_normals(V, faces), faces, frags)
-        normals = normals / normals.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        normals = normalize_rows(interpolate_rows(vertex_normals(V, faces), frags.bary, frags.corners))
     uv_frag = interpolate_attribute(uv, topo.uv_faces, frags) if ("color" in passes or "mask" in passes) else None
     for name in passes:
         if name == "color":
@@ -234,7 +242,7 @@ def image_l1(out: RenderOutput, name: str, target: torch.Tensor, weight: torch.T
 
 
 def render_scan_targets(V_scan: np.ndarray, F_scan: np.ndarray, cameras: Sequence[Camera],
-                        cache_path: str | Path | None = None) -> dict[str, torch.Tensor]:
+                        cache_path: str | Path | None = None, backend: str = "cpu") -> dict[str, torch.Tensor]:
     """Depth, normal and coverage images of a fixed scan, rendered once per view set.
 
     The scan never moves, so its targets are computed once (no gradient) and,
@@ -243,21 +251,26 @@ def render_scan_targets(V_scan: np.ndarray, F_scan: np.ndarray, cameras: Sequenc
     Args:
         V_scan: (n, 3) float positions, mm. F_scan: (m, 3) int faces.
         cameras: the undistorted views.
+        cache_path: ``.npz`` to reuse (when its views match) or create.
+        backend: "auto" | "cpu" | "nvdiffrast" (see ``gpja.render.backend``).
     Returns:
         ``"depth"`` (B, H, W, 1) mm, ``"normal"`` (B, H, W, 3), ``"coverage"``
         (B, H, W, 1), float32 tensors.
     """
     from gpja.io import write_npz
+    from gpja.render.backend import renderer
 
     key = np.frombuffer(b"".join(c.cache_key() + c.Rt.tobytes() for c in cameras), dtype=np.uint8)
     if cache_path is not None and Path(cache_path).is_file():
         with np.load(cache_path) as cached:
             if np.array_equal(cached["views_key"], key) and cached["n_vertices"] == len(V_scan):
                 return {k: torch.from_numpy(cached[k]) for k in ("depth", "normal", "coverage")}
+    render = renderer(backend)
+    device = torch.device("cuda") if render is not render_views else torch.device("cpu")
     with torch.no_grad():
-        out = render_views(torch.as_tensor(np.asarray(V_scan), dtype=torch.float32), torch.as_tensor(np.asarray(F_scan)),
-                           cameras, passes=("depth", "normal"))
-        targets = {k: out.dense(k).contiguous() for k in ("depth", "normal", "coverage")}
+        out = render(torch.as_tensor(np.asarray(V_scan), dtype=torch.float32, device=device),
+                     torch.as_tensor(np.asarray(F_scan)), cameras, passes=("depth", "normal"))
+        targets = {k: out.dense(k).contiguous().cpu() for k in ("depth", "normal", "coverage")}
     if cache_path is not None:
         write_npz(cache_path, views_key=key, n_vertices=np.int64(len(V_scan)),
                   **{k: v.numpy() for k, v in targets.items()})

@@ -33,20 +33,25 @@ def _is_top_left(ax, ay, bx, by):
 
 @nb.njit(cache=True, parallel=True)
 def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth):
-    n_views = screen.shape[0]
+    n_views, n_vertices = screen.shape[0], screen.shape[1]
     scale = float(1 << SUBPIXEL_BITS)
+    # snap every vertex once per view (each is shared by ~6 triangles); coordinates
+    # far outside the image are clamped so the fixed-point products cannot overflow
+    fixed = np.empty((n_views, n_vertices, 2), dtype=np.int64)
+    limit = float(4 * max(height, width) + 64)
+    for b in nb.prange(n_views):
+        for i in range(n_vertices):
+            fixed[b, i, 0] = np.int64(np.round(min(max(screen[b, i, 0], -limit), limit) * scale))
+            fixed[b, i, 1] = np.int64(np.round(min(max(screen[b, i, 1], -limit), limit) * scale))
     for b in nb.prange(n_views):
         for f in range(faces.shape[0]):
             i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
             z0, z1, z2 = screen[b, i0, 2], screen[b, i1, 2], screen[b, i2, 2]
             if z0 < NEAR_MM or z1 < NEAR_MM or z2 < NEAR_MM:
                 continue
-            x0 = np.int64(np.round(screen[b, i0, 0] * scale))
-            y0 = np.int64(np.round(screen[b, i0, 1] * scale))
-            x1 = np.int64(np.round(screen[b, i1, 0] * scale))
-            y1 = np.int64(np.round(screen[b, i1, 1] * scale))
-            x2 = np.int64(np.round(screen[b, i2, 0] * scale))
-            y2 = np.int64(np.round(screen[b, i2, 1] * scale))
+            x0, y0 = fixed[b, i0, 0], fixed[b, i0, 1]
+            x1, y1 = fixed[b, i1, 0], fixed[b, i1, 1]
+            x2, y2 = fixed[b, i2, 0], fixed[b, i2, 1]
             area = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0)
             if area == 0:
                 continue

@@ -2,7 +2,7 @@ import numpy as np
 import torch
 
 from gpja.render import face_adjacency
-from gpja.render.antialias import blend_across_edges
+from gpja.render.silhouettes import blend_across_edges
 from tests.render.scenes import sphere
 
 
@@ -35,3 +35,43 @@ def test_gradcheck_blend_float64():
     t = torch.tensor([0.1, 0.7, 0.35, 0.9], dtype=torch.float64, requires_grad=True)
     occ, oth = torch.tensor([0, 1, 2, 2]), torch.tensor([3, 4, 5, 1])
     assert torch.autograd.gradcheck(lambda v, tt: blend_across_edges(v, tt, occ, oth), (values, t))
+
+
+def test_edge_pairs_match_a_brute_force_scan_of_all_pixel_pairs():
+    """The outline-driven pair search finds exactly the pairs a scan of every pixel pair finds."""
+    import trimesh
+
+    from gpja.render import project_to_screen, rasterize_fragments
+    from gpja.render.silhouettes import _facing_kernel, _find_edge, find_edge_pairs
+    from tests.render.scenes import ring_cameras
+
+    big = trimesh.creation.icosphere(subdivisions=4, radius=60)
+    small = trimesh.creation.icosphere(subdivisions=2, radius=25)  # in front of it: interior occlusion edges
+    V = np.concatenate([big.vertices, np.asarray(small.vertices) + [20, 10, 60]])
+    F = np.concatenate([big.faces, np.asarray(small.faces) + len(big.vertices)]).astype(np.int64)
+    size = 64
+    cams = ring_cameras(2, size)
+    screen = project_to_screen(torch.tensor(V), cams)
+    frags = rasterize_fragments(screen, torch.tensor(F), size, size)
+    adj = face_adjacency(F)
+    pairs = find_edge_pairs(frags, screen, torch.tensor(F), adj)
+    found = set(zip(pairs.occluder.tolist(), pairs.other.tolist()))
+    S = screen.numpy()
+    facing = np.empty((len(cams), len(F)), np.bool_)
+    _facing_kernel(S, F, facing)
+    expected = set()
+    for b in range(len(cams)):
+        T, D = frags.tri_id[b], frags.depth[b]
+        for axis in range(2):
+            for y in range(size - axis):
+                for x in range(size - 1 + axis):
+                    qy, qx = y + axis, x + 1 - axis
+                    if T[y, x] == T[qy, qx]:
+                        continue
+                    first = T[qy, qx] < 0 or (T[y, x] >= 0 and D[y, x] <= D[qy, qx])
+                    (ox, oy), (px, py) = ((x, y), (qx, qy)) if first else ((qx, qy), (x, y))
+                    va, _ = _find_edge(S, facing, b, F, adj, T[oy, ox], float(ox), float(oy), float(px), float(py))
+                    if va >= 0:
+                        expected.add(((b * size + oy) * size + ox, (b * size + py) * size + px))
+    assert len(found) > 100
+    assert found == expected

@@ -60,6 +60,7 @@ def synth_settings():
 def all_targets(wildcards):
     """Every output the current stages produce."""
     targets = expand(f"{RESULTS}/{{subject}}/data/{{expression}}.json", subject=SUBJECTS, expression=EXPRESSIONS)
+    targets += expand(f"{RESULTS}/{{subject}}/targets/{{expression}}.npz", subject=SUBJECTS, expression=EXPRESSIONS)
     if SYNTH["enabled"]:
         targets += expand(f"{RESULTS}/{{subject}}/contact_sheet.png", subject=SUBJECTS)
     return targets

@@ -56,3 +56,33 @@ rule check_expression:
     shell:
         "gpja check-data --subject {wildcards.subject} --expression {wildcards.expression}"
         " {params.data} --cache-dir {params.cache} --output {output} > {log} 2>&1"
+
+
+rule render_scan_targets:
+    """Render one expression's scan into its views once: the depth/normal targets of registration."""
+    input:
+        unpack(expression_inputs),
+    output:
+        targets=f"{RESULTS}/{{subject}}/targets/{{expression}}.npz",
+        preview=report(
+            f"{RESULTS}/{{subject}}/targets/{{expression}}.png",
+            caption="../report/scan_targets.rst",
+            category="Data",
+            labels={"subject": "{subject}", "expression": "{expression}", "figure": "scan targets"},
+        ),
+    params:
+        data=data_args(),
+        cache=f"{RESULTS}/undistorted",
+        backend=config["render"]["backend"],
+    log:
+        f"{LOGS}/{{subject}}/render_scan_targets/{{expression}}.log",
+    benchmark:
+        f"{BENCH}/{{subject}}/render_scan_targets/{{expression}}.tsv"
+    threads: 2
+    resources:
+        mem_mb=3000,
+        runtime=5,
+    shell:
+        "gpja scan-targets --subject {wildcards.subject} --expression {wildcards.expression}"
+        " {params.data} --cache-dir {params.cache} --backend {params.backend}"
+        " --output {output.targets} --preview {output.preview} > {log} 2>&1"

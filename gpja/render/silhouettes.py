@@ -114,40 +114,77 @@ def _find_edge(screen, facing, b, faces, adj, f, ox, oy, qx, qy):
     return -1, -1
 
 
+@nb.njit(cache=True, inline="always")
+def _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, qx, qy, va, vb, axis, out, base, n, capacity):
+    """Record pixel pair (x, y)-(qx, qy) if edge (va, vb) is the silhouette its face walk finds."""
+    height, width = tri_id.shape[1], tri_id.shape[2]
+    if x < 0 or y < 0 or qx >= width or qy >= height:
+        return n
+    t0 = tri_id[b, y, x]
+    t1 = tri_id[b, qy, qx]
+    if t0 == t1:
+        return n
+    if t1 < 0 or (t0 >= 0 and depth[b, y, x] <= depth[b, qy, qx]):
+        f, ox, oy, px, py = t0, x, y, qx, qy  # occluder at the first pixel
+    else:
+        f, ox, oy, px, py = t1, qx, qy, x, y
+    ea, eb = _find_edge(screen, facing, b, faces, adj, f, float(ox), float(oy), float(px), float(py))
+    if not ((ea == va and eb == vb) or (ea == vb and eb == va)):
+        return n  # another edge (or none) bounds the visible surface here: hidden or interior
+    if n < capacity:  # past capacity only count; the caller retries larger
+        r = base + n
+        out[r, 0] = (b * height + oy) * width + ox
+        out[r, 1] = (b * height + py) * width + px
+        out[r, 2] = b
+        out[r, 3] = ea
+        out[r, 4] = eb
+        out[r, 5] = axis
+    return n + 1
+
+
 @nb.njit(cache=True, parallel=True)
 def _edge_pairs_kernel(tri_id, depth, screen, facing, faces, adj, counts, capacity, out):
+    """For every view, the pixel pairs straddling a visible silhouette edge.
+
+    Candidates come from the silhouette edges themselves (each edge is walked
+    along the pixel rows and columns it crosses), so the work scales with the
+    outline length, not with the image area.
+    """
     n_views, height, width = tri_id.shape
     for b in nb.prange(n_views):
         n = 0
         base = b * capacity
-        for axis in range(2):
-            for y in range(height - axis):
-                for x in range(width - 1 + axis):
-                    qy = y + axis
-                    qx = x + 1 - axis
-                    t0 = tri_id[b, y, x]
-                    t1 = tri_id[b, qy, qx]
-                    if t0 == t1:
-                        continue
-                    if t0 >= 0 and t1 >= 0 and facing[b, t0] == facing[b, t1] and (
-                            adj[t0, 0] == t1 or adj[t0, 1] == t1 or adj[t0, 2] == t1):
-                        continue  # neighbours on one sheet: no silhouette between them
-                    if t1 < 0 or (t0 >= 0 and depth[b, y, x] <= depth[b, qy, qx]):
-                        f, ox, oy, px, py = t0, x, y, qx, qy  # occluder at the first pixel
-                    else:
-                        f, ox, oy, px, py = t1, qx, qy, x, y
-                    va, vb = _find_edge(screen, facing, b, faces, adj, f, float(ox), float(oy), float(px), float(py))
-                    if va < 0:
-                        continue
-                    if n < capacity:  # past capacity only count; the caller retries larger
-                        r = base + n
-                        out[r, 0] = (b * height + oy) * width + ox
-                        out[r, 1] = (b * height + py) * width + px
-                        out[r, 2] = b
-                        out[r, 3] = va
-                        out[r, 4] = vb
-                        out[r, 5] = axis
-                    n += 1
+        for f in range(faces.shape[0]):
+            for k in range(3):
+                g = adj[f, k]
+                if g >= 0 and (g < f or facing[b, g] == facing[b, f]):
+                    continue  # interior edge, or a silhouette edge already visited from g
+                va = faces[f, k]
+                vb = faces[f, (k + 1) % 3]
+                xa, ya = screen[b, va, 0], screen[b, va, 1]
+                xb, yb = screen[b, vb, 0], screen[b, vb, 1]
+                if screen[b, va, 2] < 1.0 or screen[b, vb, 2] < 1.0:
+                    continue
+                # horizontal pairs: rows y with the edge crossing between x and x + 1
+                if ya != yb:
+                    y0 = max(0, int(np.ceil(min(ya, yb))))
+                    y1 = min(height - 1, int(np.floor(max(ya, yb))))
+                    for y in range(y0, y1 + 1):
+                        xc = xa + (y - ya) * (xb - xa) / (yb - ya)
+                        x = int(np.floor(xc))
+                        if x < -1 or x >= width:
+                            continue
+                        n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x + 1, y, va, vb, 0, out, base, n, capacity)
+                # vertical pairs: columns x with the edge crossing between y and y + 1
+                if xa != xb:
+                    x0 = max(0, int(np.ceil(min(xa, xb))))
+                    x1 = min(width - 1, int(np.floor(max(xa, xb))))
+                    for x in range(x0, x1 + 1):
+                        yc = ya + (x - xa) * (yb - ya) / (xb - xa)
+                        y = int(np.floor(yc))
+                        if y < -1 or y >= height:
+                            continue
+                        n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x, y + 1, va, vb, 1, out, base, n, capacity)
         counts[b] = n
 
 

@@ -1,0 +1,147 @@
+"""Time the CPU renderer: one forward + backward of the colour, depth and normal passes
+(plus the mouth-mask pass the colour loss uses) over 8 views, on a synthetic head mesh
+decimated to 16K / 64K / 250K triangles, at 256x256 and 512x512.
+
+Side by side in the same run, the straightforward alternative: Open3D
+``RaycastingScene`` rebuilt every iteration for visibility, then plain torch
+(barycentrics, indexing interpolation, texture) for the same passes and losses.
+It has no antialiasing pass, so the comparison favours it.
+
+Prints JSON: per configuration the median milliseconds of each path and their ratio.
+Usage: python benchmarks/bench_render.py [--repeats N] [--faces 16000 64000 250000] [--sizes 256 512]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+
+import numpy as np
+import open3d as o3d
+import pymeshlab
+import torch
+from skimage.measure import marching_cubes
+
+from gpja.data.synthetic import head as head_mod
+from gpja.data.synthetic.capture import make_rig, make_sh
+from gpja.render import Topology, image_l1, render_views
+from gpja.render.project import project_to_screen
+from gpja.render.texture import sample_texture
+from gpja.lighting import shade_lambertian
+
+
+def head_meshes(face_counts: list[int]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """The synthetic head (seed 0) as marching cubes at 0.7 mm, decimated to each face count."""
+    params = head_mod.sample_head_params(np.random.default_rng(0))
+    program = head_mod.build_head_program(params)["head"]
+    grid, origin = head_mod.sample_sdf_grid(program, 0.7, np.zeros(3))
+    verts, faces, _, _ = marching_cubes(grid, 0.0, spacing=(0.7,) * 3)
+    out = {}
+    for target in face_counts:
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(origin + verts.astype(np.float64), faces.astype(np.int32)))
+        if target < len(faces):
+            ms.meshing_decimation_quadric_edge_collapse(targetfacenum=target, preservetopology=True)
+        m = ms.current_mesh()
+        out[target] = (m.vertex_matrix().astype(np.float64), m.face_matrix().astype(np.int64))
+    return out
+
+
+def cylindrical_uv(V: np.ndarray) -> np.ndarray:
+    theta = np.arctan2(V[:, 0], V[:, 2])
+    return np.stack([0.5 + theta / (2 * np.pi), (V[:, 1] - V[:, 1].min()) / np.ptp(V[:, 1])], axis=1)
+
+
+def plain_step(V, F, cams, uv, tex, mask, sh, targets):
+    """Open3D visibility rebuilt from the current vertices + plain torch shading/interpolation."""
+    H, W = cams[0].height, cams[0].width
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(V.detach().numpy().astype(np.float32)), o3d.core.Tensor(F.numpy().astype(np.uint32)))
+    v, u = np.mgrid[0:H, 0:W]
+    pix = np.stack([u.ravel(), v.ravel()], 1).astype(np.float64)
+    rays = np.concatenate([np.concatenate(c.pixel_rays(pix), 1) for c in cams]).astype(np.float32)
+    ids = scene.cast_rays(o3d.core.Tensor(rays), nthreads=0)["primitive_ids"].numpy().astype(np.int64)
+    hit = np.flatnonzero(ids != o3d.t.geometry.RaycastingScene.INVALID_ID)
+    view = torch.from_numpy(hit // (H * W))
+    px = torch.from_numpy((hit % W).astype(np.float32))
+    py = torch.from_numpy(((hit // W) % H).astype(np.float32))
+    face = torch.from_numpy(ids[hit])
+    screen = project_to_screen(V, cams)
+    s = screen[view[:, None], F[face]]  # (P, 3, 3)
+    dx, dy = s[..., 0] - px[:, None], s[..., 1] - py[:, None]
+    e = torch.stack([dx[:, 1] * dy[:, 2] - dy[:, 1] * dx[:, 2], dx[:, 2] * dy[:, 0] - dy[:, 2] * dx[:, 0],
+                     dx[:, 0] * dy[:, 1] - dy[:, 0] * dx[:, 1]], 1)
+    w = e / s[..., 2]
+    bary = w / w.sum(1, keepdim=True)
+    z = e.sum(1) / w.sum(1)
+    tri = F[face]
+    vn = torch.zeros_like(V).index_add_(0, F.reshape(-1), torch.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]], dim=1).repeat_interleave(3, 0))
+    vn = vn / vn.norm(dim=1, keepdim=True)
+    normal = (bary[..., None] * vn[tri]).sum(1)
+    normal = normal / normal.norm(dim=1, keepdim=True)
+    uvp = (bary[..., None] * uv[tri]).sum(1)
+    color = shade_lambertian(sample_texture(tex, uvp), normal, sh)
+    m = sample_texture(mask, uvp)
+    flat = torch.from_numpy(hit)
+    loss = ((color - targets["color"].reshape(-1, 3)[flat]).abs() * m).sum()
+    loss = loss + (z[:, None] - targets["depth"].reshape(-1, 1)[flat]).abs().sum()
+    loss = loss + (normal - targets["normal"].reshape(-1, 3)[flat]).abs().sum()
+    loss.backward()
+
+
+def our_step(V, topo, cams, uv, tex, mask, sh, targets, bg_l1):
+    out = render_views(V, topo, cams, ("color", "depth", "normal", "mask"), uv=uv, texture=tex, mask_texture=mask, sh=sh)
+    loss = image_l1(out, "color", targets["color"], weight=out.values["mask"])
+    loss = loss + image_l1(out, "depth", targets["depth"], target_background_l1=bg_l1["depth"])
+    loss = loss + image_l1(out, "normal", targets["normal"], target_background_l1=bg_l1["normal"])
+    loss.backward()
+
+
+def median_ms(fn, repeats: int) -> float:
+    fn()  # warm-up (numba compilation, allocator)
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return 1000.0 * statistics.median(times)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--faces", type=int, nargs="+", default=[16000, 64000, 250000])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[256, 512])
+    ap.add_argument("--no-baseline", action="store_true")
+    args = ap.parse_args()
+    meshes = head_meshes(args.faces)
+    rng = np.random.default_rng(0)
+    sh = torch.tensor(make_sh(rng), dtype=torch.float32)
+    gen = torch.Generator().manual_seed(0)
+    tex = torch.rand(1024, 1024, 3, generator=gen)
+    mask = torch.ones(256, 256, 1)
+    results = []
+    for size in args.sizes:
+        cams = [c.undistorted() for c in make_rig(np.random.default_rng(1), 8, size, 600.0, False)]
+        targets = {"color": torch.rand(8, size, size, 3, generator=gen), "depth": 600 * torch.rand(8, size, size, 1, generator=gen),
+                   "normal": torch.rand(8, size, size, 3, generator=gen)}
+        bg_l1 = {k: v.abs().sum() for k, v in targets.items()}
+        for n_faces, (V0, F0) in meshes.items():
+            topo = Topology(torch.from_numpy(F0), torch.from_numpy(F0))
+            uv = torch.tensor(cylindrical_uv(V0), dtype=torch.float32)
+            V = torch.tensor(V0, dtype=torch.float32, requires_grad=True)
+            row = {"faces": int(len(F0)), "vertices": int(len(V0)), "image": size, "views": 8}
+            row["gpja_ms"] = round(median_ms(lambda: our_step(V, topo, cams, uv, tex, mask, sh, targets, bg_l1), args.repeats), 1)
+            if not args.no_baseline:
+                F = torch.from_numpy(F0)
+                row["open3d_plain_torch_ms"] = round(median_ms(lambda: plain_step(V, F, cams, uv, tex, mask, sh, targets), args.repeats), 1)
+                row["speedup"] = round(row["open3d_plain_torch_ms"] / row["gpja_ms"], 2)
+            results.append(row)
+            print(json.dumps(row), flush=True)
+    print(json.dumps({"benchmark": "render_forward_backward", "torch_threads": torch.get_num_threads(),
+                      "repeats": args.repeats, "results": results}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

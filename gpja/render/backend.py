@@ -1,0 +1,47 @@
+"""Choice of rasterisation backend: the CPU renderer, or nvdiffrast on a CUDA GPU.
+
+``render.backend`` in the config: ``auto`` picks nvdiffrast when it imports
+and CUDA is available, else the CPU renderer; ``cpu`` always uses the CPU
+renderer; ``nvdiffrast`` requires it and fails clearly otherwise. Both
+backends return the same ``RenderOutput`` type, so losses and callers do not
+change. The nvdiffrast path has NOT been run against the CPU backend yet (no
+GPU was available when it was written): treat it as experimental.
+"""
+from __future__ import annotations
+
+import importlib.util
+from typing import Callable
+
+BACKENDS = ("auto", "cpu", "nvdiffrast")
+
+
+def nvdiffrast_available() -> bool:
+    """True when nvdiffrast imports and torch sees a CUDA device."""
+    if importlib.util.find_spec("nvdiffrast") is None:
+        return False
+    import torch
+
+    return bool(torch.cuda.is_available())
+
+
+def resolve_backend(name: str = "auto") -> str:
+    """The concrete backend ("cpu" or "nvdiffrast") for a configured name."""
+    if name not in BACKENDS:
+        raise ValueError(f"render backend must be one of {BACKENDS}, got {name!r}")
+    if name == "auto":
+        return "nvdiffrast" if nvdiffrast_available() else "cpu"
+    if name == "nvdiffrast" and not nvdiffrast_available():
+        raise RuntimeError("render.backend is 'nvdiffrast' but nvdiffrast is not installed or no CUDA device is visible; "
+                           "use 'auto' or 'cpu'")
+    return name
+
+
+def renderer(name: str = "auto") -> Callable:
+    """The ``render_views`` function of a backend (same signature and output for both)."""
+    if resolve_backend(name) == "nvdiffrast":
+        from gpja.render.nvdiffrast_backend import render_views_nvdiffrast
+
+        return render_views_nvdiffrast
+    from gpja.render.passes import render_views
+
+    return render_views
