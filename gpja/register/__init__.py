@@ -1,0 +1,1 @@
+"""Registration: HRA losses, the LargeSteps parameterisation, remeshing and the optimisation loop."""

@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+import torch
+
+from gpja.lighting import uniform_sh
+from gpja.register.hra import ExpressionTargets, Switches, constraint_loss, passes_for
+from gpja.render import Topology, render_views
+from tests.render.scenes import ring_cameras, sphere, spherical_uv
+
+
+def setup(size=48):
+    V, F = sphere(subdivisions=3, radius=60.0)
+    topo = Topology(torch.tensor(F), torch.tensor(F))
+    uv = torch.tensor(spherical_uv(V), dtype=torch.float32)
+    tex = torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0))
+    cams = ring_cameras(2, size)
+    sh = torch.tensor(uniform_sh(), dtype=torch.float32)
+    Vt = torch.tensor(V, dtype=torch.float32)
+    ref = render_views(Vt, topo, cams, ("color", "depth", "normal"), uv=uv, texture=tex, sh=sh)
+    targets = ExpressionTargets(cams, ref.dense("color").detach(), ref.dense("depth").detach(),
+                                ref.dense("normal").detach(), ref.dense("coverage").detach(), sh)
+    return Vt, topo, uv, tex, targets
+
+
+def loss_of(constraint, V, topo, uv, tex, targets, switches, mask):
+    out = render_views(V, topo, targets.cameras, passes_for(constraint, switches), uv=uv, texture=tex,
+                       mask_texture=mask, sh=targets.sh)
+    return constraint_loss(constraint, out, targets, switches)
+
+
+@pytest.mark.parametrize("constraint", ["color", "depth", "normal"])
+def test_zero_at_the_target_and_positive_when_moved(constraint):
+    V, topo, uv, tex, targets = setup()
+    mask = torch.ones(8, 8, 1)
+    assert float(loss_of(constraint, V, topo, uv, tex, targets, Switches(), mask)) < 1e-5
+    moved = V * torch.tensor([1.08, 0.95, 1.0])
+    assert float(loss_of(constraint, moved, topo, uv, tex, targets, Switches(), mask)) > 1e-3
+
+
+def test_mouth_mask_removes_masked_texels_from_the_colour_loss():
+    V, topo, uv, tex, targets = setup()
+    wrong = targets.images.clone()
+    wrong[...] = 0.0  # every covered pixel differs
+    targets.images = wrong
+    all_masked = torch.zeros(8, 8, 1)  # the whole texture is "mouth interior"
+    assert float(loss_of("color", V, topo, uv, tex, targets, Switches(mask=True), all_masked)) == 0.0
+    assert float(loss_of("color", V, topo, uv, tex, targets, Switches(mask=False), all_masked)) > 0.1
+
+
+def test_rotation_and_switches():
+    assert Switches().rotation() == ("color", "depth", "normal")
+    assert Switches(color=False).rotation() == ("depth", "normal")
+    assert passes_for("color", Switches(mask=False)) == ("color",)
+    with pytest.raises(ValueError, match="switched off"):
+        Switches(color=False, depth=False, normal=False).rotation()
+
+
+def test_depth_counts_only_where_the_scan_has_data():
+    V, topo, uv, tex, targets = setup()
+    targets.coverage = torch.zeros_like(targets.coverage)  # a scan with no data in these views
+    targets.depth = torch.zeros_like(targets.depth)
+    assert float(loss_of("depth", V, topo, uv, tex, targets, Switches(), torch.ones(8, 8, 1))) == 0.0
