@@ -4,11 +4,21 @@ L_color = sum_j |(F_S(x | Pi_j, S, C_T) - P_j) * F_S(x | Pi_j, B)|   (mouth-mask
 L_depth = sum_j |F_D(x | Pi_j) - F_D(scan | Pi_j)|
 L_normal = sum_j |F_N(x | Pi_j) - F_N(scan | Pi_j)|
 
-Two choices go beyond the paper's text and are deliberate:
+Choices beyond the paper's text, made deliberately:
 - Depth and normal differences count only where the scan itself was rendered
   (its coverage): a multiview-stereo scan has holes (top and back of the skull,
   under the chin), and comparing against the empty background there would pull
   the template towards the camera.
+- Silhouettes: antialiasing blends the template's depth with the 0 background,
+  so a plain |d - d_scan| makes every outline pixel a ~600 mm error whose
+  gradient, through the uniform Adam normalisation (one scale for all
+  vertices), freezes the rest of the mesh. Since antialiasing blends depth and
+  coverage c with the same weights (d = c * d_surface), we compare, weighted
+  by the scan's coverage s, |d - c * D_scan| = c * |d_surface - D_scan| (with
+  D_scan = d_scan / s, the scan's own un-blended value) and charge the
+  coverage the template lacks, relu(s - c), a fixed ``SILHOUETTE_DEPTH_MM``
+  (normals: ``SILHOUETTE_NORMAL``). Both terms vanish at a perfect fit, and
+  outlines move at a rate comparable to the interior.
 - Each constraint is an average over the pixels it counts, so the three have
   comparable scales in the logs (the uniform Adam step is scale-free anyway).
 """
@@ -23,6 +33,10 @@ from gpja.camera import Camera
 from gpja.render import RenderOutput, Topology, image_l1
 
 CONSTRAINTS = ("color", "depth", "normal")
+#: Cost of a scan pixel the template does not cover, in the depth constraint's units (mm).
+SILHOUETTE_DEPTH_MM = 10.0
+#: The same for the normal constraint (units of a normal difference, per channel).
+SILHOUETTE_NORMAL = 1.0
 
 
 @dataclass
@@ -85,9 +99,23 @@ def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTarge
         loss = image_l1(out, "color", targets.images, weight=weight)
         return loss / weight.detach().sum().clamp_min(1.0) / 3.0
     target = targets.depth if constraint == "depth" else targets.normal
-    weight = out.gather(targets.coverage)
-    loss = image_l1(out, constraint, target, weight=weight)
-    return loss / weight.sum().clamp_min(1.0) / target.shape[-1]
+    kappa = SILHOUETTE_DEPTH_MM if constraint == "depth" else SILHOUETTE_NORMAL
+    # Antialiased values are blends with the 0 background; on thin features a pixel can give
+    # weight to several neighbours, so blended coverage may leave [0, 1] (depth follows it
+    # consistently, d = c * D). Un-blend where the coverage is clearly non-zero, weight by the
+    # clamped coverage.
+    raw_scan = out.gather(targets.coverage)  # (R, 1)
+    scan = raw_scan.clamp(0.0, 1.0)
+    valid = raw_scan.abs() > 1e-3
+    scan_value = torch.where(valid, out.gather(target) / torch.where(valid, raw_scan, torch.ones_like(raw_scan)),
+                             torch.zeros_like(raw_scan))
+    cover = out.values["coverage"]
+    inside = (scan * (out.values[constraint] - cover * scan_value).abs()).sum() / target.shape[-1]
+    missing = torch.relu(scan - cover.clamp(0.0, 1.0)).sum()
+    # scan pixels outside the render's rows are wholly uncovered: a constant for the gradient
+    total = targets.coverage.clamp(0.0, 1.0).sum()
+    outside = total - scan.sum()
+    return (inside + kappa * (missing + outside.detach())) / total.clamp_min(1.0)
 
 
 def render_constraint(constraint: str, V: torch.Tensor, topology: Topology, targets: ExpressionTargets,
