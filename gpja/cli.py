@@ -131,6 +131,80 @@ def cmd_scan_targets(args: argparse.Namespace) -> None:
         write_image(args.preview, np.concatenate(rows, axis=0))
 
 
+def _load_for_registration(args):
+    from gpja.data.facescape import load_expression
+    from gpja.register.pipeline import expression_targets, lighting_for, warn_on_holes
+
+    data = load_expression(args.images_root, args.subject, args.expression, views=args.views,
+                           scans_root=args.scans_root, rt_scale_path=args.rt_scale,
+                           cache_dir=args.cache_dir, max_image_size=args.max_image_size)
+    warn_on_holes(data)
+    sh = lighting_for(args.subject, args.expression, args.ground_truth_root)
+    return data, expression_targets(data, args.targets, sh)
+
+
+def _settings(text: str) -> dict:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise InputError("--settings", f"not valid JSON ({err})") from None
+
+
+def _schedule(cfg: dict):
+    from gpja.register.multiscale import Schedule
+
+    return Schedule(lambdas=tuple(float(x) for x in cfg["lambdas"]), iterations=tuple(int(x) for x in cfg["iterations"]),
+                    refine_factor=float(cfg.get("refine_factor", 2.5)), lr_fraction=float(cfg.get("lr_fraction", 0.1)))
+
+
+def cmd_template(args: argparse.Namespace) -> None:
+    from gpja.register.pipeline import write_template
+    from gpja.register.template import TemplateSettings, create_template
+
+    cfg = _settings(args.settings)
+    data, targets = _load_for_registration(args)
+    settings = TemplateSettings(bust_edge_mm=float(cfg.get("bust_edge_mm", 6.0)), schedule=_schedule(cfg),
+                                texture_size=int(cfg.get("texture_size", 1024)),
+                                texture_iterations=int(cfg.get("texture_iterations", 200)),
+                                texture_lr=float(cfg.get("texture_lr", 0.05)), template_faces=int(cfg.get("faces", 32000)))
+    start = time.perf_counter()
+    template = create_template(data.scan.V, targets, settings, progress=lambda m: print(m, flush=True))
+    write_template(template, args.output_dir)
+    print(f"template: {args.subject} done in {time.perf_counter() - start:.1f} s "
+          f"({len(template.mesh.V)} vertices) -> {args.output_dir}", flush=True)
+
+
+def cmd_register(args: argparse.Namespace) -> None:
+    import os
+
+    from gpja.register.hra import Switches
+    from gpja.register.pipeline import check_units, read_template, register, write_registration
+
+    cfg = _settings(args.settings)
+    template, mask = read_template(args.template_dir)
+    data, targets = _load_for_registration(args)
+    check_units(template, data.scan.V, data.scan.path)
+    off = set(args.without or [])
+    switches = Switches(color="color" not in off, depth="depth" not in off, normal="normal" not in off, mask="mask" not in off)
+    start = time.perf_counter()
+    mesh, log = register(template, mask, targets, _schedule(cfg), switches, progress=lambda m: print(m, flush=True))
+    texture_ref = os.path.relpath(Path(args.template_dir) / "texture.png", Path(args.output).parent)
+    summary = {"subject": args.subject, "expression": args.expression, "switches": switches.__dict__,
+               "seconds": round(time.perf_counter() - start, 2), **log.to_json()}
+    write_registration(mesh, summary, args.output, texture_ref)
+    print(f"register: {args.subject}/{args.expression} done in {summary['seconds']} s ({len(mesh.V)} vertices)", flush=True)
+
+
+def _add_registration_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--subject", required=True)
+    p.add_argument("--expression", required=True)
+    _add_data_args(p)
+    p.add_argument("--ground-truth-root", default=None, help="synthetic ground truth (for the SH lighting)")
+    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
+    p.add_argument("--targets", required=True, help="the expression's scan targets .npz (rendered if missing)")
+    p.add_argument("--settings", required=True, help="JSON: lambdas, iterations, refine_factor, lr_fraction, ...")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpja", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -163,6 +237,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", required=True, help="targets .npz")
     p.add_argument("--preview", default=None, help="PNG: reference | scan normals | scan depth, one row per view")
     p.set_defaults(func=cmd_scan_targets)
+
+    p = sub.add_parser("template", help="build a subject's textured template from its mouth-open expression")
+    _add_registration_args(p)
+    p.add_argument("--output-dir", required=True)
+    p.set_defaults(func=cmd_template)
+
+    p = sub.add_parser("register", help="register the subject's template to one expression (GPJA or an ablation)")
+    _add_registration_args(p)
+    p.add_argument("--template-dir", required=True)
+    p.add_argument("--without", nargs="*", choices=["color", "depth", "normal", "mask"], help="ablation: constraints to switch off")
+    p.add_argument("--output", required=True, help="registered mesh .obj (a .json log is written beside it)")
+    p.set_defaults(func=cmd_register)
     return parser
 
 

@@ -1,6 +1,7 @@
 """The project's own promises: README <-> CI agreement, pinned environment, config schema, DAG."""
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -74,7 +75,11 @@ def test_dry_run_schedules_synthesis_and_checks(tmp_path):
     n_subjects, n_expressions = len(cfg["subjects"]), len(cfg["expressions"])
     assert int(counts["synthesize_subject"]) == n_subjects
     assert int(counts["check_expression"]) == n_subjects * n_expressions
-    assert int(counts["render_scan_targets"]) == n_subjects * n_expressions
+    with_template = n_expressions + (cfg["registration"]["template_expression"] not in cfg["expressions"])
+    assert int(counts["render_scan_targets"]) == n_subjects * with_template
+    assert int(counts["build_template"]) == n_subjects
+    methods = cfg["registration"]["methods"]
+    assert int(counts["register_expression"]) == n_subjects * n_expressions * len(methods)
 
 
 def test_invalid_config_stops_before_any_rule(tmp_path):
@@ -101,6 +106,19 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         assert all(v["scan_fraction_in_view"] > 0.5 for v in summary["views"])
         assert 0.3 < summary["scan"]["median_edge_mm"] < 1.2
     assert (work / f"results/{cfg['dataset']}/S01/contact_sheet.png").is_file()
+    template_dir = work / f"results/{cfg['dataset']}/S01/template"
+    for name in ("template.obj", "template.mtl", "texture.png", "mouth_mask.png", "template.json",
+                 "stages/bust.obj", "stages/fitted.obj"):
+        assert (template_dir / name).is_file(), name
+    from gpja.mesh import read_obj
+
+    template = read_obj(template_dir / "template.obj")
+    for expression in cfg["expressions"]:
+        registered = read_obj(work / f"results/{cfg['dataset']}/S01/gpja/{expression}.obj")
+        assert registered.texture is not None  # the shared template texture, by reference
+        assert len(registered.F) > len(template.F)  # refined between levels
+        log = json.loads((work / f"results/{cfg['dataset']}/S01/gpja/{expression}.json").read_text())
+        assert [lvl["lambda"] for lvl in log["levels"]] == cfg["registration"]["gpja"]["lambdas"]
     for expression in cfg["expressions"]:
         with np.load(work / f"results/{cfg['dataset']}/S01/targets/{expression}.npz") as targets:
             size = cfg["synthetic"]["image_size"]

@@ -7,6 +7,11 @@ SUBJECTS = [str(s) for s in config["subjects"]]
 EXPRESSIONS = list(config["expressions"])
 DATA = config["data"]
 SYNTH = config["synthetic"]
+REG = config["registration"]
+TEMPLATE_EXPRESSION = REG["template_expression"]
+# the template's expression is always read (and synthesised), even if not registered
+DATA_EXPRESSIONS = EXPRESSIONS + [e for e in [TEMPLATE_EXPRESSION] if e not in EXPRESSIONS]
+METHODS = list(REG["methods"])
 RESULTS = f"results/{DATASET}"
 LOGS = f"logs/{DATASET}"
 BENCH = f"benchmarks/{DATASET}"
@@ -14,7 +19,8 @@ BENCH = f"benchmarks/{DATASET}"
 
 wildcard_constraints:
     subject="|".join(SUBJECTS),
-    expression="|".join(EXPRESSIONS),
+    expression="|".join(DATA_EXPRESSIONS),
+    method="|".join(METHODS),
 
 
 def params_json(subject, expression):
@@ -53,8 +59,26 @@ def synth_settings():
     keys = ["seed", "image_size", "n_views", "camera_distance_mm", "scan_voxel_mm",
             "scan_noise_mm", "distortion", "supersample", "raw_variant"]
     settings = {k: SYNTH[k] for k in keys if k in SYNTH}
-    settings["expressions"] = EXPRESSIONS
+    settings["expressions"] = DATA_EXPRESSIONS
     return shlex.quote(json.dumps(settings, sort_keys=True))
+
+
+def gt_args():
+    """Ground truth (synthetic data only): the capture's SH lighting comes from it."""
+    return f"--ground-truth-root {DATA['ground_truth_root']}" if DATA.get("ground_truth_root") else ""
+
+
+def json_arg(obj):
+    return shlex.quote(json.dumps(obj, sort_keys=True))
+
+
+ABLATIONS = {"gpja": [], "gpja-no_normal": ["normal"], "gpja-no_depth": ["depth"],
+             "gpja-no_color": ["color"], "gpja-no_mask": ["mask"]}
+
+
+def without_args(wildcards):
+    off = ABLATIONS[wildcards.method]
+    return "--without " + " ".join(off) if off else ""
 
 
 def all_targets(wildcards):
@@ -63,4 +87,7 @@ def all_targets(wildcards):
     targets += expand(f"{RESULTS}/{{subject}}/targets/{{expression}}.npz", subject=SUBJECTS, expression=EXPRESSIONS)
     if SYNTH["enabled"]:
         targets += expand(f"{RESULTS}/{{subject}}/contact_sheet.png", subject=SUBJECTS)
+    targets += expand(f"{RESULTS}/{{subject}}/template/template.obj", subject=SUBJECTS)
+    targets += expand(f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.obj", subject=SUBJECTS, method=METHODS,
+                      expression=EXPRESSIONS)
     return targets

@@ -5,9 +5,9 @@ if SYNTH["enabled"]:
     rule synthesize_subject:
         """Procedural head, expressions, scans, multiview images and ground truth of one subject."""
         output:
-            params=[params_json("{subject}", e) for e in EXPRESSIONS],
-            scans=[scan_ply("{subject}", e) for e in EXPRESSIONS],
-            ground_truth=[f"{DATA['ground_truth_root']}/{{subject}}/{e}.npz" for e in EXPRESSIONS],
+            params=[params_json("{subject}", e) for e in DATA_EXPRESSIONS],
+            scans=[scan_ply("{subject}", e) for e in DATA_EXPRESSIONS],
+            ground_truth=[f"{DATA['ground_truth_root']}/{{subject}}/{e}.npz" for e in DATA_EXPRESSIONS],
             subject_info=f"{DATA['ground_truth_root']}/{{subject}}/subject.json",
             contact_sheet=report(
                 f"{RESULTS}/{{subject}}/contact_sheet.png",

@@ -1,0 +1,81 @@
+# Stage 2, GPJA: the subject's textured template, then every expression registered from it.
+
+
+def registration_inputs(wildcards, expression=None):
+    """An expression's data files and its cached scan targets."""
+    expression = expression or wildcards.expression
+    files = {"params": params_json(wildcards.subject, expression), "scan": scan_ply(wildcards.subject, expression),
+             "targets": f"{RESULTS}/{wildcards.subject}/targets/{expression}.npz"}
+    if DATA.get("rt_scale"):
+        files["rt_scale"] = DATA["rt_scale"]
+    if DATA.get("ground_truth_root"):
+        files["ground_truth"] = f"{DATA['ground_truth_root']}/{wildcards.subject}/{expression}.npz"
+    return files
+
+
+rule build_template:
+    """Fit the genus-0 bust to the mouth-open scan (depth only), reconstruct the texture, decimate."""
+    input:
+        unpack(lambda wc: registration_inputs(wc, TEMPLATE_EXPRESSION)),
+    output:
+        obj=f"{RESULTS}/{{subject}}/template/template.obj",
+        mtl=f"{RESULTS}/{{subject}}/template/template.mtl",
+        texture=report(
+            f"{RESULTS}/{{subject}}/template/texture.png",
+            caption="../report/template_texture.rst",
+            category="Template",
+            labels={"subject": "{subject}", "figure": "texture"},
+        ),
+        mask=f"{RESULTS}/{{subject}}/template/mouth_mask.png",
+        log_json=f"{RESULTS}/{{subject}}/template/template.json",
+        stages=directory(f"{RESULTS}/{{subject}}/template/stages"),
+    params:
+        data=data_args(),
+        gt=gt_args(),
+        cache=f"{RESULTS}/undistorted",
+        settings=json_arg(REG["template"]),
+        expression=TEMPLATE_EXPRESSION,
+        out_dir=f"{RESULTS}/{{subject}}/template",
+    log:
+        f"{LOGS}/{{subject}}/build_template.log",
+    benchmark:
+        f"{BENCH}/{{subject}}/build_template.tsv"
+    threads: 2
+    resources:
+        mem_mb=6000,
+        runtime=30,
+    shell:
+        "gpja template --subject {wildcards.subject} --expression {params.expression} {params.data} {params.gt}"
+        " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
+        " --output-dir {params.out_dir} > {log} 2>&1"
+
+
+rule register_expression:
+    """Register the subject's template to one expression with GPJA (or an ablation variant)."""
+    input:
+        unpack(registration_inputs),
+        template=rules.build_template.output.obj,
+        texture=rules.build_template.output.texture,
+        mask=rules.build_template.output.mask,
+    output:
+        obj=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.obj",
+        log_json=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.json",
+    params:
+        data=data_args(),
+        gt=gt_args(),
+        cache=f"{RESULTS}/undistorted",
+        settings=json_arg(REG["gpja"]),
+        without=without_args,
+        template_dir=f"{RESULTS}/{{subject}}/template",
+    log:
+        f"{LOGS}/{{subject}}/{{method}}/{{expression}}.log",
+    benchmark:
+        f"{BENCH}/{{subject}}/{{method}}/{{expression}}.tsv"
+    threads: 2
+    resources:
+        mem_mb=6000,
+        runtime=30,
+    shell:
+        "gpja register --subject {wildcards.subject} --expression {wildcards.expression} {params.data} {params.gt}"
+        " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
+        " --template-dir {params.template_dir} {params.without} --output {output.obj} > {log} 2>&1"
