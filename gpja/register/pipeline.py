@@ -4,6 +4,7 @@ The workflow's ``gpja template`` and ``gpja register`` commands call these.
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Callable
 
@@ -42,8 +43,6 @@ def expression_targets(data: ExpressionData, targets_path: str | Path, sh: np.nd
     images = torch.tensor(np.stack(data.images), dtype=torch.float32)
     for view, cov in zip(data.views, t["coverage"]):
         if float(cov.sum()) == 0:
-            import logging
-
             logging.warning("%s/%s view %s: the scan covers no pixel of this view", data.subject, data.expression, view.name)
     return ExpressionTargets(cams, images, t["depth"], t["normal"], t["coverage"], torch.tensor(sh, dtype=torch.float32))
 
@@ -64,8 +63,6 @@ def warn_on_holes(data: ExpressionData) -> None:
 
     open_edges = int((face_adjacency(data.scan.F) < 0).sum())
     if open_edges:
-        import logging
-
         logging.warning("%s: the scan has holes (%d boundary edges); depth and normals are fitted where it has data",
                         data.scan.path, open_edges)
 
