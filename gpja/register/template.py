@@ -27,8 +27,8 @@ from gpja.lighting import irradiance_over_pi
 from gpja.mesh import TexturedMesh, read_obj, write_obj
 from gpja.register.bust import Bust, make_bust, place_bust
 from gpja.register.hra import ExpressionTargets, Switches
-from gpja.register.multiscale import RegistrationLog, Schedule, optimise
-from gpja.render import Topology, interpolate_attribute, rasterize_fragments, sample_texture
+from gpja.register.multiscale import Schedule, optimise
+from gpja.render import interpolate_attribute, rasterize_fragments, sample_texture
 from gpja.render.passes import normalize_rows, vertex_normals
 from gpja.render.project import project_to_screen
 

@@ -25,9 +25,10 @@ BACKGROUND = -1
 
 @nb.njit(cache=True, inline="always")
 def _is_top_left(ax, ay, bx, by):
-    # For the winding used below (positive area in y-down pixel coordinates),
-    # a "top" edge is horizontal going right-to-left... expressed generally:
-    # top edge: ay == by and bx < ax ; left edge: by > ay.
+    # Top-left fill rule for the positive winding used below (y-down pixels):
+    # a top edge is horizontal and runs right to left (ay == by, bx < ax);
+    # a left edge runs downwards (by > ay). Pixels exactly on such edges belong
+    # to the triangle, on all others to its neighbour.
     return (ay == by and bx < ax) or (by > ay)
 
 

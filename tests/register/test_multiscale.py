@@ -1,5 +1,4 @@
 import numpy as np
-import open3d as o3d
 import pytest
 import torch
 

@@ -1,7 +1,6 @@
 """End to end on a tiny synthetic subject: template from the mouth-open scan, then registration of another expression."""
 import numpy as np
 import pytest
-import torch
 
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh

@@ -9,7 +9,6 @@ from gpja.register.multiscale import Schedule
 from gpja.register.remesh import refine_by_factor
 from gpja.register.template import TemplateSettings, create_template, decimate_with_texture, reconstruct_texture
 from gpja.render import Topology, render_scan_targets, render_views
-from tests.render.scenes import sphere
 from tests.render.test_passes import surface_distance, tetrahedral_cameras
 from tests.register.test_remesh import seamed_sphere
 

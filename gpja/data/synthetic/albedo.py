@@ -96,7 +96,7 @@ def _albedo_kernel(P, q, pocket, lips, moles, out):
     ir0, ir1, ir2 = q[4], q[5], q[6]
     hr0, hr1, hr2 = q[7], q[8], q[9]
     freck = q[10]
-    my, mw, lipz = q[11], q[12], q[13]
+    _mouth_y, mw, lipz = q[11], q[12], q[13]
     ex, ey, ez = q[14], q[15], q[16]
     R = q[17]
     for n in numba.prange(P.shape[0]):

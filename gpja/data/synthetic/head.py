@@ -74,7 +74,7 @@ class HeadParams:
         return np.array([x, y, surf - EYE_RADIUS_MM - 3.0])
 
     def _cranium_front_z(self, x: float, y: float) -> float:
-        cx, cy, cz = 0.0, 20.0, -5.0
+        cy, cz = 20.0, -5.0  # cranium centre (x = 0)
         q = 1.0 - (x / self.cranium_half_width) ** 2 - ((y - cy) / self.cranium_half_height) ** 2
         return cz + self.cranium_half_depth * math.sqrt(max(q, 0.0))
 

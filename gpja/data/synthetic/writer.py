@@ -15,7 +15,7 @@ Every file goes through :mod:`gpja.io`'s atomic writers.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +23,7 @@ import numpy as np
 from gpja.data.synthetic.albedo import albedo_tables, evaluate_albedo
 from gpja.data.synthetic.capture import RayBundle, build_scene, make_rig, make_sh, render_view, vertex_normals
 from gpja.data.synthetic.expressions import DEFAULT_EXPRESSIONS, EXPRESSIONS, expression_number, map_to_expression
-from gpja.data.synthetic.head import build_head_program, extract_rest_mesh, sample_head_params
+from gpja.data.synthetic.head import build_head_program, sample_head_params
 from gpja.data.synthetic.landmarks import rest_landmarks
 from gpja.data.synthetic.scan import cut_scan
 from gpja.errors import InputError
