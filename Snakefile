@@ -15,6 +15,8 @@ validate(config, "workflow/schemas/config.schema.yaml")
 include: "workflow/rules/common.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/register.smk"
+include: "workflow/rules/baselines.smk"
+include: "workflow/rules/metrics.smk"
 
 
 rule all:

@@ -154,7 +154,8 @@ def _schedule(cfg: dict):
     from gpja.register.multiscale import Schedule
 
     return Schedule(lambdas=tuple(float(x) for x in cfg["lambdas"]), iterations=tuple(int(x) for x in cfg["iterations"]),
-                    refine_factor=float(cfg.get("refine_factor", 2.5)), lr_fraction=float(cfg.get("lr_fraction", 0.1)))
+                    refine_factor=float(cfg.get("refine_factor", 2.5)), lr_fraction=float(cfg.get("lr_fraction", 0.1)),
+                    lr_decay=float(cfg.get("lr_decay", 1.0)))
 
 
 def cmd_template(args: argparse.Namespace) -> None:
@@ -195,6 +196,53 @@ def cmd_register(args: argparse.Namespace) -> None:
     print(f"register: {args.subject}/{args.expression} done in {summary['seconds']} s ({len(mesh.V)} vertices)", flush=True)
 
 
+def cmd_nicp(args: argparse.Namespace) -> None:
+    from gpja.baselines.nicp import run_nicp_files, settings_from_config
+
+    settings = settings_from_config(_settings(args.settings), "--settings")
+    start = time.perf_counter()
+    log = run_nicp_files(args.template_dir, args.scans_root, args.subject, args.expression, args.output,
+                         landmarks=args.landmarks, template_landmarks=args.template_landmarks,
+                         template_expression=args.template_expression, rt_scale=args.rt_scale, settings=settings,
+                         progress=lambda m: print(m, flush=True))
+    print(f"nicp: {args.subject}/{args.expression} done in {time.perf_counter() - start:.1f} s "
+          f"({log.get('vertices', '?')} vertices)", flush=True)
+
+
+def cmd_import(args: argparse.Namespace) -> None:
+    from gpja.baselines.external import import_mesh
+    from gpja.data.facescape import scan_path
+    from gpja.io import write_json
+
+    log = import_mesh(args.pattern, args.subject, args.expression, args.output, transform_pattern=args.transform,
+                      texture=args.texture, scan=scan_path(args.scans_root, args.subject, args.expression),
+                      rt_scale=args.rt_scale)
+    log["method"] = args.method
+    write_json(Path(args.output).with_suffix(".json"), log)
+    print(f"import: {args.method} {args.subject}/{args.expression} <- {log['source']} "
+          f"({log['vertices']} vertices{'' if log['has_uv'] else ', no UVs'})", flush=True)
+
+
+def cmd_metrics(args: argparse.Namespace) -> None:
+    from gpja.io import write_json
+    from gpja.metrics.evaluate import MetricSettings, evaluate_expression, summary_line
+
+    try:
+        settings = MetricSettings.from_config(_settings(args.settings))
+    except TypeError as err:
+        raise InputError("--settings", str(err)) from None
+    start = time.perf_counter()
+    result = evaluate_expression(
+        mesh_path=args.mesh, subject=args.subject, expression=args.expression, method=args.method,
+        template_dir=args.template_dir, images_root=args.images_root, scans_root=args.scans_root,
+        targets_path=args.targets, out_dir=args.output_dir, ground_truth_root=args.ground_truth_root,
+        rt_scale=args.rt_scale, views=args.views, cache_dir=args.cache_dir, max_image_size=args.max_image_size,
+        template_expression=args.template_expression, settings=settings)
+    write_json(args.output, result)
+    print(f"metrics: {args.subject}/{args.method}/{args.expression}: {summary_line(result)} "
+          f"({time.perf_counter() - start:.1f} s)", flush=True)
+
+
 def _add_registration_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--subject", required=True)
     p.add_argument("--expression", required=True)
@@ -208,6 +256,8 @@ def _add_registration_args(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpja", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="CPU threads for torch and numba (workflow rules pass their `threads`); default: all")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("synth", help="synthesise one subject of the benchmark in FaceScape layout")
@@ -249,13 +299,69 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--without", nargs="*", choices=["color", "depth", "normal", "mask"], help="ablation: constraints to switch off")
     p.add_argument("--output", required=True, help="registered mesh .obj (a .json log is written beside it)")
     p.set_defaults(func=cmd_register)
+
+    p = sub.add_parser("nicp", help="register the subject's template to one expression with optimal-step NICP")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--expression", required=True)
+    p.add_argument("--scans-root", required=True)
+    p.add_argument("--rt-scale", default=None, help="FaceScape Rt_scale_dict.json (omit when data is in mm)")
+    p.add_argument("--template-dir", required=True)
+    p.add_argument("--template-expression", default="3_mouth_stretch")
+    p.add_argument("--landmarks", required=True,
+                   help="pattern ({subject}, {expression}) of the scan landmark files (68x3 JSON/TXT, or ground-truth .npz)")
+    p.add_argument("--template-landmarks", default=None,
+                   help="pattern ({subject}) of template landmark vertex indices or points; default: the template "
+                        "expression's landmark file")
+    p.add_argument("--settings", default="{}", help="JSON: NICP settings (steps, max_distance_mm, ...)")
+    p.add_argument("--output", required=True, help="registered mesh .obj (a .json log is written beside it)")
+    p.set_defaults(func=cmd_nicp)
+
+    p = sub.add_parser("import", help="bring a mesh made by another tool into the workflow (scored like the others)")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--expression", required=True)
+    p.add_argument("--method", required=True, help="the imported method's name")
+    p.add_argument("--pattern", required=True, help="mesh path pattern with {subject} and {expression} (OBJ or PLY)")
+    p.add_argument("--transform", default=None, help="transform JSON pattern (4x4, {scale, R, t} or Rt_scale_dict)")
+    p.add_argument("--texture", default=None, help="texture the imported OBJ should reference (e.g. the template's)")
+    p.add_argument("--scans-root", required=True, help="to check the mesh's units and placement against the scan")
+    p.add_argument("--rt-scale", default=None)
+    p.add_argument("--output", required=True, help="the imported mesh .obj (a .json log beside it)")
+    p.set_defaults(func=cmd_import)
+
+    p = sub.add_parser("metrics", help="score one method's mesh of one expression: geometry, photometry, correspondence")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--expression", required=True)
+    p.add_argument("--method", required=True, help="the method's name (recorded in the JSON)")
+    p.add_argument("--mesh", required=True, help="the method's mesh .obj (template UVs for photometric metrics)")
+    p.add_argument("--template-dir", required=True, help="the subject's template folder (shared texture)")
+    p.add_argument("--template-expression", default="3_mouth_stretch")
+    _add_data_args(p)
+    p.add_argument("--ground-truth-root", default=None, help="synthetic ground truth (lighting, correspondence)")
+    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
+    p.add_argument("--targets", default=None, help="the expression's scan targets .npz")
+    p.add_argument("--settings", default="{}", help="JSON: the config's metrics section")
+    p.add_argument("--output", required=True, help="metrics JSON")
+    p.add_argument("--output-dir", required=True, help="per-vertex errors, renders and error images")
+    p.set_defaults(func=cmd_metrics)
     return parser
+
+
+def limit_threads(n: int) -> None:
+    """Use at most ``n`` threads: jobs sharing a machine otherwise oversubscribe it (torch's
+    OpenMP workers spin while waiting, so two jobs of 2 threads on 2 cores run several times slower)."""
+    import numba
+    import torch
+
+    torch.set_num_threads(n)
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    if args.threads:
+        limit_threads(args.threads)
     try:
         args.func(args)
     except GpjaError as err:

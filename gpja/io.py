@@ -149,3 +149,12 @@ def link_or_copy(src: str | Path, dst: str | Path) -> None:
     except OSError:
         shutil.copyfile(src, tmp)
     os.replace(tmp, dst)
+
+
+def fill_path_pattern(pattern: str | Path, subject: str, expression: str) -> Path:
+    """The path a config pattern with ``{subject}`` / ``{expression}`` placeholders names."""
+    try:
+        return Path(str(pattern).format(subject=subject, expression=expression))
+    except (KeyError, IndexError, ValueError) as err:
+        raise InputError("config", f"path pattern {str(pattern)!r}: only {{subject}} and {{expression}} "
+                                   f"placeholders are allowed ({type(err).__name__}: {err})") from None

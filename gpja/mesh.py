@@ -206,6 +206,17 @@ def read_obj(path: str | Path, load_texture: bool = True) -> TexturedMesh:
     return TexturedMesh(V=V, F=F, UV=UV, F_uv=F_uv, texture=texture).validate(path)
 
 
+def referenced_texture(path: str | Path) -> Path | None:
+    """The texture image an OBJ's material library (its first ``mtllib``) references, or None."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "mesh file not found")
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        if line.startswith("mtllib "):
+            return _texture_from_mtl(path.parent / line.split(maxsplit=1)[1].strip())
+    return None
+
+
 def _texture_from_mtl(mtl: Path) -> Path | None:
     """The first ``map_Kd`` image of an MTL file, or None."""
     if not mtl.is_file():

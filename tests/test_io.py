@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -62,3 +64,12 @@ def test_atomic_outputs_get_the_usual_file_mode(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (tmp_path / "m.json").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_path_patterns_fill_subject_and_expression_and_refuse_other_fields():
+    from gpja.io import fill_path_pattern
+
+    assert fill_path_pattern("a/{subject}/{expression}.obj", "S01", "1_neutral") == Path("a/S01/1_neutral.obj")
+    assert fill_path_pattern("fixed.obj", "S01", "1_neutral") == Path("fixed.obj")
+    with pytest.raises(InputError, match="only {subject} and {expression}"):
+        fill_path_pattern("a/{subj}.obj", "S01", "1_neutral")

@@ -80,6 +80,11 @@ def test_dry_run_schedules_synthesis_and_checks(tmp_path):
     assert int(counts["build_template"]) == n_subjects
     methods = cfg["registration"]["methods"]
     assert int(counts["register_expression"]) == n_subjects * n_expressions * len(methods)
+    baselines = cfg["baselines"]
+    n_nicp = n_subjects * n_expressions if baselines["nicp"]["enabled"] else 0
+    assert int(counts.get("nicp_expression", 0)) == n_nicp
+    scored = len(methods) + baselines["nicp"]["enabled"] + len(baselines["external"])
+    assert int(counts["compute_metrics"]) == n_subjects * n_expressions * scored
 
 
 def test_invalid_config_stops_before_any_rule(tmp_path):
@@ -119,6 +124,16 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         assert len(registered.F) > len(template.F)  # refined between levels
         log = json.loads((work / f"results/{cfg['dataset']}/S01/gpja/{expression}.json").read_text())
         assert [lvl["lambda"] for lvl in log["levels"]] == cfg["registration"]["gpja"]["lambdas"]
+        metrics = json.loads((work / f"results/{cfg['dataset']}/S01/gpja/metrics/{expression}.json").read_text())
+        assert metrics["method"] == "gpja" and metrics["expression"] == expression
+        assert 0.0 < metrics["geometry"]["chamfer_l1_mm"] < 2.0
+        assert 0.9 < metrics["geometry"]["normal_consistency"] <= 1.0
+        assert metrics["photometric"]["psnr"] > 15.0
+        assert metrics["correspondence"]["fraction_used"] > 0.3
+        nicp = json.loads((work / f"results/{cfg['dataset']}/S01/nicp/metrics/{expression}.json").read_text())
+        assert nicp["method"] == "nicp" and nicp["photometric"]["psnr"] > 15.0  # NICP keeps the template's UVs
+        details = work / f"results/{cfg['dataset']}/S01/gpja/metrics/{expression}"
+        assert (details / "geometry_errors.npz").is_file() and (details / "render" / "0.png").is_file()
     for expression in cfg["expressions"]:
         with np.load(work / f"results/{cfg['dataset']}/S01/targets/{expression}.npz") as targets:
             size = cfg["synthetic"]["image_size"]

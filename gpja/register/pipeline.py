@@ -87,9 +87,32 @@ def read_template(template_dir: str | Path) -> tuple[TexturedMesh, np.ndarray]:
     return mesh, mask
 
 
+def warn_on_uncovered_views(mesh: TexturedMesh, targets: ExpressionTargets, source: str = "") -> list[int]:
+    """Warn for each view in which the starting mesh covers no pixel; return their indices.
+
+    Such a view contributes no gradient at all (a misplaced template or a wrong
+    camera), which otherwise only shows as a poor fit.
+    """
+    from gpja.render import render_views
+
+    with torch.no_grad():
+        out = render_views(torch.tensor(mesh.V, dtype=torch.float32), torch.from_numpy(mesh.F), targets.cameras,
+                           passes=(), antialias_edges=False)
+    n_views, height, width = out.shape
+    covered = np.bincount(out.pixels.numpy() // (height * width), minlength=n_views)
+    empty = [int(i) for i in np.flatnonzero(covered == 0)]
+    for i in empty:
+        camera = targets.cameras[i]
+        logging.warning("%sview %s: the mesh covers no pixel of this view; it contributes nothing to the fit "
+                        "(check the template placement and the camera)", f"{source}: " if source else "",
+                        camera.name or i)
+    return empty
+
+
 def register(template: TexturedMesh, mouth_mask: np.ndarray, targets: ExpressionTargets, schedule: Schedule,
              switches: Switches, progress: Callable[[str], None] = print):
     """Register the template to one expression (GPJA or an ablation variant)."""
+    warn_on_uncovered_views(template, targets)
     texture = torch.tensor(template.texture, dtype=torch.float32)
     mask = torch.tensor(mouth_mask, dtype=torch.float32)[..., None]
     return optimise(template, targets, switches, schedule, texture=texture, mask_texture=mask, progress=progress)

@@ -52,3 +52,14 @@ def test_nan_names_level_and_iteration():
     with pytest.raises(RegistrationDiverged, match=r"level 0, iteration \d+: the depth loss is nan"):
         optimise(start_mesh(), targets, Switches(color=False, normal=False), Schedule(lambdas=(20.0,), iterations=(5,)),
                  texture=torch.ones(4, 4, 3), mask_texture=torch.ones(4, 4, 1), progress_every=0)
+
+
+def test_learning_rate_decays_geometrically_within_a_level():
+    constant = Schedule(lambdas=(10.0,), iterations=(5,))
+    assert [constant.learning_rate(2.0, i, 5) for i in range(5)] == [2.0] * 5  # the paper: constant
+    decayed = Schedule(lambdas=(10.0,), iterations=(5,), lr_decay=0.01)
+    rates = [decayed.learning_rate(2.0, i, 5) for i in range(5)]
+    np.testing.assert_allclose(rates, 2.0 * 0.01 ** (np.arange(5) / 4))
+    assert rates[0] == 2.0 and abs(rates[-1] - 0.02) < 1e-12
+    with pytest.raises(ValueError, match="lr_decay"):
+        Schedule(lambdas=(10.0,), iterations=(5,), lr_decay=1.5)

@@ -11,7 +11,12 @@ REG = config["registration"]
 TEMPLATE_EXPRESSION = REG["template_expression"]
 # the template's expression is always read (and synthesised), even if not registered
 DATA_EXPRESSIONS = EXPRESSIONS + [e for e in [TEMPLATE_EXPRESSION] if e not in EXPRESSIONS]
-METHODS = list(REG["methods"])
+BASELINES = config.get("baselines", {})
+NICP = BASELINES.get("nicp", {"enabled": False})
+# imported methods by name: {pattern, transform, texture}
+EXTERNAL = {m["name"]: m for m in BASELINES.get("external", [])}
+REGISTRATION_METHODS = list(REG["methods"])
+METHODS = REGISTRATION_METHODS + (["nicp"] if NICP.get("enabled") else []) + list(EXTERNAL)
 RESULTS = f"results/{DATASET}"
 LOGS = f"logs/{DATASET}"
 BENCH = f"benchmarks/{DATASET}"
@@ -72,6 +77,14 @@ def json_arg(obj):
     return shlex.quote(json.dumps(obj, sort_keys=True))
 
 
+def external_texture_arg(wildcards):
+    """An imported mesh references the subject's template texture when configured to (texture: template)."""
+    texture = EXTERNAL[wildcards.method].get("texture")
+    if texture == "template":
+        return f"--texture {RESULTS}/{wildcards.subject}/template/texture.png"
+    return f"--texture {shlex.quote(texture)}" if texture else ""
+
+
 ABLATIONS = {"gpja": [], "gpja-no_normal": ["normal"], "gpja-no_depth": ["depth"],
              "gpja-no_color": ["color"], "gpja-no_mask": ["mask"]}
 
@@ -88,6 +101,6 @@ def all_targets(wildcards):
     if SYNTH["enabled"]:
         targets += expand(f"{RESULTS}/{{subject}}/contact_sheet.png", subject=SUBJECTS)
     targets += expand(f"{RESULTS}/{{subject}}/template/template.obj", subject=SUBJECTS)
-    targets += expand(f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.obj", subject=SUBJECTS, method=METHODS,
-                      expression=EXPRESSIONS)
+    targets += expand(f"{RESULTS}/{{subject}}/{{method}}/metrics/{{expression}}.json", subject=SUBJECTS,
+                      method=METHODS, expression=EXPRESSIONS)
     return targets

@@ -30,7 +30,7 @@ if SYNTH["enabled"]:
             mem_mb=4000,
             runtime=10,
         shell:
-            "gpja synth --subject {wildcards.subject} --settings {params.settings}"
+            "gpja --threads {threads} synth --subject {wildcards.subject} --settings {params.settings}"
             " --images-root {params.images_root} --scans-root {params.scans_root}"
             " --ground-truth-root {params.gt_root} --raw-root {params.raw_root}"
             " --contact-sheet {output.contact_sheet} > {log} 2>&1"
@@ -54,7 +54,7 @@ rule check_expression:
         mem_mb=2000,
         runtime=5,
     shell:
-        "gpja check-data --subject {wildcards.subject} --expression {wildcards.expression}"
+        "gpja --threads {threads} check-data --subject {wildcards.subject} --expression {wildcards.expression}"
         " {params.data} --cache-dir {params.cache} --output {output} > {log} 2>&1"
 
 
@@ -83,6 +83,6 @@ rule render_scan_targets:
         mem_mb=3000,
         runtime=5,
     shell:
-        "gpja scan-targets --subject {wildcards.subject} --expression {wildcards.expression}"
+        "gpja --threads {threads} scan-targets --subject {wildcards.subject} --expression {wildcards.expression}"
         " {params.data} --cache-dir {params.cache} --backend {params.backend}"
         " --output {output.targets} --preview {output.preview} > {log} 2>&1"

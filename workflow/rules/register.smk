@@ -45,7 +45,7 @@ rule build_template:
         mem_mb=6000,
         runtime=30,
     shell:
-        "gpja template --subject {wildcards.subject} --expression {params.expression} {params.data} {params.gt}"
+        "gpja --threads {threads} template --subject {wildcards.subject} --expression {params.expression} {params.data} {params.gt}"
         " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
         " --output-dir {params.out_dir} > {log} 2>&1"
 
@@ -60,6 +60,8 @@ rule register_expression:
     output:
         obj=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.obj",
         log_json=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.json",
+    wildcard_constraints:
+        method="|".join(REGISTRATION_METHODS),
     params:
         data=data_args(),
         gt=gt_args(),
@@ -76,6 +78,6 @@ rule register_expression:
         mem_mb=6000,
         runtime=30,
     shell:
-        "gpja register --subject {wildcards.subject} --expression {wildcards.expression} {params.data} {params.gt}"
+        "gpja --threads {threads} register --subject {wildcards.subject} --expression {wildcards.expression} {params.data} {params.gt}"
         " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
         " --template-dir {params.template_dir} {params.without} --output {output.obj} > {log} 2>&1"

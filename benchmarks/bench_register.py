@@ -1,0 +1,95 @@
+"""Time one GPJA registration, level by level, at the default or the paper's settings.
+
+Registers a subject's template to one expression of a finished workflow run
+(default: the default config's ``data/synthetic`` and ``results/synthetic``,
+subject S01, expression 1_neutral) and prints JSON: total seconds, and per
+level the vertex count, iterations, iterations per second and where the time
+went (forward solve, render + loss, backward incl. the adjoint solve), plus
+the scan-to-mesh distance of the result (mean / median / 95th percentile, mm;
+every scan vertex to the registered surface, Open3D closest points).
+
+Presets:
+  default  the settings of ``config/config.yaml`` (registration.gpja).
+  paper    4 levels 16K -> ~250K vertices (refine factor 2.5), lambda
+           200/120/80/50, 1500 iterations in all (375 per level), 8 views at
+           the data's resolution (512 x 512 for the default synthetic data).
+  --settings '{...}' overrides either (same keys as the config section).
+
+Usage:
+  python benchmarks/bench_register.py [--preset default|paper] [--subject S01] [--expression 1_neutral]
+        [--data data/synthetic] [--results results/synthetic] [--settings JSON]
+Run the workflow first (``snakemake --cores 2``) so the data, targets and template exist.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+PAPER = {"lambdas": [200, 120, 80, 50], "iterations": [375, 375, 375, 375], "refine_factor": 2.5, "lr_fraction": 0.1}
+
+
+def scan_to_mesh_mm(scan_V: np.ndarray, V: np.ndarray, F: np.ndarray) -> dict:
+    from gpja.metrics.geometry import closest_points, prepare_surface
+
+    surface = prepare_surface(V, F, scan_V.mean(axis=0), find_boundary=False)
+    d = closest_points(surface, scan_V).distance
+    return {"mean": round(float(d.mean()), 4), "median": round(float(np.median(d)), 4),
+            "p95": round(float(np.percentile(d, 95)), 4)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", choices=["default", "paper"], default="default")
+    parser.add_argument("--settings", default="{}", help="JSON overriding the preset")
+    parser.add_argument("--subject", default="S01")
+    parser.add_argument("--expression", default="1_neutral")
+    parser.add_argument("--data", default="data/synthetic")
+    parser.add_argument("--results", default="results/synthetic")
+    args = parser.parse_args()
+
+    from gpja.cli import _schedule
+    from gpja.data.facescape import load_expression
+    from gpja.register.hra import Switches
+    from gpja.register.pipeline import expression_targets, lighting_for, read_template, register
+
+    default = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["registration"]["gpja"]
+    settings = {**(PAPER if args.preset == "paper" else default), **json.loads(args.settings)}
+    data_root, results = Path(args.data), Path(args.results) / args.subject
+    template_dir = results / "template"
+    targets_path = results / "targets" / f"{args.expression}.npz"
+    for needed in (template_dir / "template.obj", targets_path):
+        if not needed.exists():
+            sys.exit(f"bench_register: {needed} is missing; run the workflow first (snakemake --cores 2)")
+
+    data = load_expression(data_root / "images", args.subject, args.expression, scans_root=data_root / "scans",
+                           cache_dir=Path(args.results) / "undistorted")
+    targets = expression_targets(data, targets_path, lighting_for(args.subject, args.expression,
+                                                                  data_root / "ground_truth"))
+    template, mask = read_template(template_dir)
+    start = time.perf_counter()
+    mesh, log = register(template, mask, targets, _schedule(settings), Switches(), progress=lambda m: print(m, file=sys.stderr))
+    seconds = time.perf_counter() - start
+    levels = [{"level": lv["level"] + 1, "vertices": lv["vertices"], "iterations": lv["iterations"],
+               "seconds": lv["seconds"], "setup_seconds": lv["setup_seconds"],
+               "iterations_per_second": round(lv["iterations"] / max(lv["seconds"] - lv["setup_seconds"], 1e-9), 2),
+               "seconds_by_stage": lv["seconds_by_stage"]} for lv in log.levels]
+    print(json.dumps({
+        "benchmark": "register", "preset": args.preset, "settings": settings, "subject": args.subject,
+        "expression": args.expression, "views": len(data.views),
+        "image_size": [data.views[0].camera.width, data.views[0].camera.height],
+        "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()},
+        "seconds": round(seconds, 2), "levels": levels,
+        "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F),
+    }, indent=1))
+
+
+if __name__ == "__main__":
+    main()

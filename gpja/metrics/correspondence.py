@@ -1,0 +1,192 @@
+"""Dense correspondence error on synthetic data, where the ground truth is exact.
+
+Geometric scores cannot see a registration that lies on the scan but slides
+along it; the synthetic benchmark can. For every expression ``e`` it stores
+``scan_rest_coords``: the rest-space (material) coordinate, mm, of every vertex
+of that expression's scan (``{ground_truth_root}/{subject}/{e}.npz``).
+Registered meshes keep the template's vertices first and in order (refinement
+appends new ones), so vertex ``i < n_template`` of a registered mesh and
+template vertex ``i`` are meant to be the same material point.
+
+For each such ``i``:
+
+* ``m_reg(i)``: project the registered vertex onto the expression's scan
+  (closest point), interpolate that scan's rest coordinates there;
+* ``m_tpl(i)``: the same for the template vertex and the scan of the
+  template's expression (``3_mouth_stretch``, the one the template was fitted to);
+* error ``|m_reg(i) - m_tpl(i)|``, mm in rest space.
+
+A vertex counts only where both projections are meaningful: within
+``max_distance_mm`` of the scan and with its closest point not on the scan's
+boundary, in *both* expressions. Off the scan (scalp, back of the head, below
+the neck cut, over holes) the closest point is the rim of the scan, whose
+material coordinate has nothing to do with the vertex. The cap's default,
+2 mm, is 2-4x the F-score thresholds the geometric scores grade, so vertices of
+any acceptable registration are kept; beyond it, the foot point stops standing
+for "the material point this vertex represents" (on a lip or a nostril, whose
+radius of curvature is a few mm, the projection from farther away can land on
+the other side). The fraction of vertices used is reported with the scores.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from gpja.data.facescape import read_scan, scan_path
+from gpja.errors import InputError
+from gpja.io import read_npz, write_npz
+from gpja.mesh import TexturedMesh, read_obj
+from gpja.metrics.geometry import closest_points, prepare_surface
+from gpja.register.pipeline import check_units
+
+#: The expression the synthetic subject's template was fitted to (DESIGN.md).
+TEMPLATE_EXPRESSION = "3_mouth_stretch"
+#: Distance cap of a usable projection onto the scan, mm (module docstring).
+DEFAULT_MAX_DISTANCE_MM = 2.0
+#: The ground-truth array of rest coordinates in each expression's ``.npz``.
+REST_COORDS_KEY = "scan_rest_coords"
+
+
+def check_vertex_prefix(n_registered: int, n_template: int, source: str | Path) -> None:
+    """Raise :class:`InputError` if a registered mesh has fewer vertices than its template."""
+    if n_registered < n_template:
+        raise InputError(source, f"{n_registered} vertices, fewer than the template's {n_template}: "
+                                 "not a registration of this template (its vertices must come first, in order)")
+
+
+def check_rest_coords(rest: np.ndarray, n_scan_vertices: int, source: str | Path) -> np.ndarray:
+    """Return ``rest`` as (n, 3) float64 after checking it matches its scan; raise :class:`InputError` if not."""
+    rest = np.asarray(rest, dtype=np.float64)
+    if rest.ndim != 2 or rest.shape[1] != 3 or len(rest) != n_scan_vertices:
+        raise InputError(source, f"{REST_COORDS_KEY} has shape {rest.shape}, expected ({n_scan_vertices}, 3): "
+                                 "one rest coordinate per scan vertex (ground truth of another scan?)")
+    if not np.isfinite(rest).all():
+        raise InputError(source, f"{REST_COORDS_KEY} contains NaN or infinite values")
+    return rest
+
+
+def check_finite(V: np.ndarray, source: str | Path) -> np.ndarray:
+    """Return ``V`` as (n, 3) float64; raise :class:`InputError` on NaN or infinite rows."""
+    V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
+    bad = ~np.isfinite(V).all(axis=1)
+    if bad.any():
+        raise InputError(source, f"{int(bad.sum())} vertices have NaN or infinite coordinates")
+    return V
+
+
+def material_coordinates(points: np.ndarray, scan: tuple[np.ndarray, np.ndarray], rest: np.ndarray,
+                         max_distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rest-space coordinates of points projected onto a scan.
+
+    Args:
+        points: (q, 3) float64 positions in the scan's expression space, mm.
+        scan: (V (n, 3) float64 mm, F (m, 3) int64) of the scan.
+        rest: (n, 3) float64 rest coordinate of every scan vertex, mm.
+        max_distance_mm: projections farther than this are unusable.
+    Returns:
+        coords: (q, 3) float64 interpolated rest coordinates, mm.
+        usable: (q,) bool, within the cap and not projected onto the scan's boundary.
+    """
+    V, F = scan
+    surface = prepare_surface(V, F, 0.5 * (V.min(axis=0) + V.max(axis=0)))
+    cp = closest_points(surface, points)
+    coords = np.einsum("qk,qkc->qc", cp.barycentric, rest[F[cp.face]])
+    return coords, (cp.distance <= max_distance_mm) & ~cp.on_boundary
+
+
+def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
+                         scan_expr: tuple[np.ndarray, np.ndarray], rest_expr: np.ndarray,
+                         scan_tpl: tuple[np.ndarray, np.ndarray], rest_tpl: np.ndarray, *,
+                         max_distance_mm: float = DEFAULT_MAX_DISTANCE_MM,
+                         mesh_source: str | Path = "registered mesh") -> dict:
+    """Rest-space distance between what registered and template vertices stand for.
+
+    Args:
+        V_reg: (n_reg, 3) float64 registered-mesh positions, mm; n_reg >= n_template.
+        V_template: (n_template, 3) float64 template positions, mm.
+        scan_expr: (V, F) of the registered expression's scan, mm / int64.
+        rest_expr: (n_scan_expr, 3) float64 rest coordinates of its vertices, mm.
+        scan_tpl, rest_tpl: the same for the template's expression.
+        max_distance_mm: projection cap (module docstring).
+        mesh_source: name of the registered mesh in error messages.
+    Returns:
+        dict: ``mean_mm``, ``median_mm``, ``p95_mm``, ``max_mm`` over used
+        vertices; ``n_used``, ``n_template_vertices``, ``fraction_used``,
+        ``max_distance_mm``; ``vertex_error_mm`` (n_template,) float64, NaN
+        where unused; ``vertex_used`` (n_template,) bool.
+    Raises:
+        InputError: fewer registered vertices than template vertices, NaN
+        positions, rest coordinates that do not match their scan, or no vertex
+        usable in both expressions.
+    """
+    if not np.isfinite(max_distance_mm) or max_distance_mm <= 0:
+        raise InputError("config", f"metrics: max_distance_mm must be a positive number (got {max_distance_mm})")
+    V_template = check_finite(V_template, "template")
+    V_reg = check_finite(V_reg, mesh_source)
+    check_vertex_prefix(len(V_reg), len(V_template), mesh_source)
+    rest_expr = check_rest_coords(rest_expr, len(scan_expr[0]), "ground truth of the registered expression")
+    rest_tpl = check_rest_coords(rest_tpl, len(scan_tpl[0]), "ground truth of the template expression")
+
+    m_reg, usable_reg = material_coordinates(V_reg[: len(V_template)], scan_expr, rest_expr, max_distance_mm)
+    m_tpl, usable_tpl = material_coordinates(V_template, scan_tpl, rest_tpl, max_distance_mm)
+    used = usable_reg & usable_tpl
+    if not used.any():
+        raise InputError(mesh_source, f"no template vertex lies within {max_distance_mm:g} mm of both scans "
+                                      "(away from their boundaries): is the mesh in the scan's frame?")
+    error = np.linalg.norm(m_reg - m_tpl, axis=1)
+    e = error[used]
+    return {"mean_mm": float(e.mean()), "median_mm": float(np.median(e)), "p95_mm": float(np.percentile(e, 95)),
+            "max_mm": float(e.max()), "n_used": int(used.sum()), "n_template_vertices": len(V_template),
+            "fraction_used": float(used.mean()), "max_distance_mm": float(max_distance_mm),
+            "vertex_error_mm": np.where(used, error, np.nan), "vertex_used": used}
+
+
+def read_rest_coords(ground_truth_root: str | Path, subject: str, expression: str, n_scan_vertices: int) -> np.ndarray:
+    """(n_scan_vertices, 3) float64 rest coordinates of an expression's scan vertices, mm."""
+    path = Path(ground_truth_root) / str(subject) / f"{expression}.npz"
+    arrays = read_npz(path)
+    if REST_COORDS_KEY not in arrays:
+        raise InputError(path, f"no {REST_COORDS_KEY!r} array (has: {', '.join(sorted(arrays)) or 'nothing'})")
+    return check_rest_coords(arrays[REST_COORDS_KEY], n_scan_vertices, path)
+
+
+def correspondence_error_files(mesh_path: str | Path, template_path: str | Path, scans_root: str | Path,
+                               ground_truth_root: str | Path, subject: str, expression: str,
+                               template_expression: str = TEMPLATE_EXPRESSION,
+                               errors_path: str | Path | None = None, *,
+                               max_distance_mm: float = DEFAULT_MAX_DISTANCE_MM) -> dict:
+    """Correspondence error of a registered mesh file against the synthetic ground truth.
+
+    Args:
+        mesh_path: registered mesh OBJ of ``subject``/``expression`` (mm).
+        template_path: the subject's template OBJ (fitted to ``template_expression``).
+        scans_root: ``{scans_root}/{subject}/{expression}.ply`` (synthetic: already mm).
+        ground_truth_root: ``{ground_truth_root}/{subject}/{expression}.npz``.
+        errors_path: where to write ``vertex_error_mm`` and ``vertex_used`` (``.npz``), or None.
+        max_distance_mm: projection cap (module docstring).
+    Returns:
+        the scores of :func:`correspondence_error` without its arrays, plus the
+        file names, subject and expressions (JSON-serialisable).
+    Raises:
+        InputError: missing or corrupt files, a ground truth whose row count is
+        not its scan's vertex count, a mesh with fewer vertices than the template.
+    """
+    mesh = read_obj(mesh_path, load_texture=False)
+    template = read_obj(template_path, load_texture=False)
+    check_vertex_prefix(len(mesh.V), len(template.V), mesh_path)
+    scan_e = read_scan(scan_path(scans_root, subject, expression))
+    scan_t = scan_e if template_expression == expression else read_scan(scan_path(scans_root, subject, template_expression))
+    check_units(template, scan_t.V, scan_t.path)
+    check_units(TexturedMesh(mesh.V, mesh.F), scan_e.V, scan_e.path)
+    rest_e = read_rest_coords(ground_truth_root, subject, expression, len(scan_e.V))
+    rest_t = read_rest_coords(ground_truth_root, subject, template_expression, len(scan_t.V))
+    result = correspondence_error(mesh.V, template.V, (scan_e.V, scan_e.F), rest_e, (scan_t.V, scan_t.F), rest_t,
+                                  max_distance_mm=max_distance_mm, mesh_source=mesh_path)
+    if errors_path is not None:
+        write_npz(errors_path, vertex_error_mm=result["vertex_error_mm"], vertex_used=result["vertex_used"])
+    out = {"mesh": str(mesh_path), "template": str(template_path), "subject": str(subject),
+           "expression": expression, "template_expression": template_expression}
+    out.update({k: v for k, v in result.items() if not isinstance(v, np.ndarray)})
+    out["errors"] = None if errors_path is None else str(errors_path)
+    return out
