@@ -2,7 +2,8 @@
 
 Every subcommand writes its outputs atomically and exits with status 2 and a
 one-line ``error: <file>: <problem>`` on bad input, so a Snakemake log names
-the culprit.
+the culprit. ``check-regression`` exits with status 1 when a metric is worse
+than its reference beyond tolerance.
 """
 from __future__ import annotations
 
@@ -243,6 +244,35 @@ def cmd_metrics(args: argparse.Namespace) -> None:
           f"({time.perf_counter() - start:.1f} s)", flush=True)
 
 
+def cmd_tables(args: argparse.Namespace) -> None:
+    from gpja.report.tables import build_tables, write_table
+
+    tables = build_tables(args.results, args.benchmarks, args.subjects, args.methods, args.expressions,
+                          names=args.tables, published=args.published)
+    for table in tables:
+        paths = write_table(table, args.output_dir)
+        print(f"tables: {table.name}: {len(table.csv_rows)} rows -> {', '.join(str(p) for p in paths)}", flush=True)
+
+
+def cmd_check_regression(args: argparse.Namespace) -> int:
+    from gpja.report.regression import check_regression, load_tolerances, tolerance_lines, write_reference
+
+    if args.write_reference:
+        n = write_reference(args.metrics, args.reference, args.subjects, args.methods, args.expressions)
+        print(f"check-regression: wrote {n} (subject, method, expression) entries from {args.metrics} "
+              f"to {args.reference}", flush=True)
+        return 0
+    tolerances = load_tolerances(args.tolerances)
+    failures, compared = check_regression(args.metrics, args.reference, tolerances)
+    print("check-regression: tolerances (worse than the reference by more than this fails):", flush=True)
+    print("\n".join(tolerance_lines(tolerances)), flush=True)
+    for failure in failures:
+        print(failure.line(), flush=True)
+    verdict = f"{len(failures)} failure(s)" if failures else "all within tolerance"
+    print(f"check-regression: {compared} metrics compared against {args.reference}: {verdict}", flush=True)
+    return 1 if failures else 0
+
+
 def _add_registration_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--subject", required=True)
     p.add_argument("--expression", required=True)
@@ -343,6 +373,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", required=True, help="metrics JSON")
     p.add_argument("--output-dir", required=True, help="per-vertex errors, renders and error images")
     p.set_defaults(func=cmd_metrics)
+
+    p = sub.add_parser("tables", help="the paper's tables (geometry, photometry, ablations, timing, correspondence) "
+                                      "as CSV, Markdown and LaTeX")
+    p.add_argument("--results", required=True, help="results/{dataset}: the metrics JSONs and registration logs")
+    p.add_argument("--benchmarks", required=True, help="benchmarks/{dataset}: Snakemake's benchmark TSVs")
+    p.add_argument("--subjects", nargs="+", required=True)
+    p.add_argument("--expressions", nargs="+", required=True)
+    p.add_argument("--methods", nargs="+", required=True, help="in table order, e.g. gpja nicp gpja-no_normal")
+    p.add_argument("--tables", nargs="+", default=None,
+                   help="geometry photometric ablation correspondence timing (default: those the run supports)")
+    p.add_argument("--published", choices=["facescape"], default=None,
+                   help="print the paper's published FaceScape numbers beside the reproduced ones")
+    p.add_argument("--output-dir", required=True, help="results/{dataset}/tables: {table}.csv|md|tex")
+    p.set_defaults(func=cmd_tables)
+
+    p = sub.add_parser("check-regression", help="compare a run's metrics with reference values (exit 1 when worse "
+                                                "beyond tolerance)")
+    p.add_argument("--metrics", required=True, help="results/{dataset} of the run")
+    p.add_argument("--reference", required=True, help="reference JSON, e.g. tests/data/ci_reference_metrics.json")
+    p.add_argument("--tolerances", default=None, help="JSON overriding allowances: {metric: {absolute, relative}}")
+    p.add_argument("--write-reference", action="store_true",
+                   help="write --reference from the run's metrics instead of checking")
+    p.add_argument("--subjects", nargs="+", default=None, help="with --write-reference: only these subjects")
+    p.add_argument("--methods", nargs="+", default=None, help="with --write-reference: only these methods")
+    p.add_argument("--expressions", nargs="+", default=None, help="with --write-reference: only these expressions")
+    p.set_defaults(func=cmd_check_regression)
     return parser
 
 
@@ -363,11 +419,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads:
         limit_threads(args.threads)
     try:
-        args.func(args)
+        status = args.func(args)
     except GpjaError as err:
         print(f"error: {err}", file=sys.stderr, flush=True)
         return 2
-    return 0
+    return status or 0
 
 
 if __name__ == "__main__":

@@ -16,6 +16,9 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+#: Metrics of a CI-configuration run, refreshed with
+#: ``gpja check-regression --metrics results/synthetic-ci --reference tests/data/ci_reference_metrics.json --write-reference``
+CI_REFERENCE = ROOT / "tests/data/ci_reference_metrics.json"
 
 
 def readme_commands() -> list[str]:
@@ -140,5 +143,28 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
             assert targets["depth"].shape == (cfg["synthetic"]["n_views"], size, size, 1)
             assert 0.05 < targets["coverage"].mean() < 0.9  # the head, not empty, not everything
             assert 400 < np.median(targets["depth"][targets["coverage"][..., 0] > 0.99]) < 800  # rig ~600 mm away
+    tables = work / f"results/{cfg['dataset']}/tables"
+    for name in ("geometry", "photometric", "correspondence", "timing"):
+        for suffix in ("csv", "md", "tex"):
+            assert (tables / f"{name}.{suffix}").is_file(), f"{name}.{suffix}"
+    # the maintainers' regression gate: every metric within tolerance of the committed reference
+    check = subprocess.run([str(Path(sys.executable).parent / "gpja"), "check-regression", "--metrics",
+                            str(work / f"results/{cfg['dataset']}"), "--reference", str(CI_REFERENCE)],
+                           capture_output=True, text=True, timeout=300)
+    assert check.returncode == 0, check.stdout[-3000:] + check.stderr[-2000:]
     assert (work / f"logs/{cfg['dataset']}/S01/synthesize_subject.log").is_file()
     assert (work / f"benchmarks/{cfg['dataset']}/S01/synthesize_subject.tsv").is_file()
+
+
+def test_nicp_rule_passes_the_landmark_pattern_not_this_jobs_file(tmp_path):
+    """A params string would have its {subject}/{expression} filled by Snakemake; NICP needs the pattern
+    (it reads the template expression's landmarks through it too)."""
+    work = copy_workflow(tmp_path)
+    target = "results/synthetic/S01/nicp/2_smile.obj"
+    out = subprocess.run([*SNAKEMAKE, "-n", "-p", "--cores", "1", "--", target], cwd=work,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    cfg = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    pattern = cfg["baselines"]["nicp"]["landmarks"]
+    assert "{subject}" in pattern
+    assert f"--landmarks {pattern}" in out.stdout or f"--landmarks '{pattern}'" in out.stdout, out.stdout[-2000:]

@@ -54,7 +54,9 @@ def vertex_normals(V: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     Returns:
         (n, 3) unit normals (world frame), differentiable in ``V``.
     """
-    tri = V[faces]
+    # index_select, not V[faces]: the backward of advanced indexing (index_put_ with accumulate) is
+    # not deterministic on the CPU, and registration must give the same numbers on every run
+    tri = V.index_select(0, faces.reshape(-1)).reshape(-1, 3, 3)
     face_n = torch.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=1)
     acc = torch.zeros_like(V).index_add_(0, faces.reshape(-1), face_n.repeat_interleave(3, dim=0))
     return normalize_rows(acc)

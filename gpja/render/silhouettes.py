@@ -238,8 +238,9 @@ def edge_crossings(screen: torch.Tensor, pairs: EdgePairs, width: int, height: i
     """
     n_vertices = screen.shape[1]
     flat = screen.reshape(-1, 3)
-    a = flat[pairs.view * n_vertices + pairs.va]
-    b = flat[pairs.view * n_vertices + pairs.vb]
+    # index_select: its backward (index_add_) is deterministic on the CPU, advanced indexing's is not
+    a = flat.index_select(0, pairs.view * n_vertices + pairs.va)
+    b = flat.index_select(0, pairs.view * n_vertices + pairs.vb)
     rem_o = pairs.occluder % (width * height)
     rem_q = pairs.other % (width * height)
     ox, oy = (rem_o % width).to(screen.dtype), (rem_o // width).to(screen.dtype)

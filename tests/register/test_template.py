@@ -25,7 +25,7 @@ def render_color(mesh, texture, cams, sh):
 
 
 def psnr(a, b, mask):
-    return float(10 * np.log10(1.0 / ((a - b) ** 2)[mask].mean().clamp_min(1e-12)))
+    return float(10 * np.log10(1.0 / ((a - b) ** 2)[mask].mean().clamp_min(1e-12).item()))
 
 
 def smooth_texture(size=64):

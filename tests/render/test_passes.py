@@ -191,3 +191,23 @@ def test_zero_size_image_and_distorted_camera_rejected():
         render_views(torch.tensor(V), torch.tensor(F), [replace(cam, width=0)], ("depth",))
     with pytest.raises(ValueError, match="lens distortion"):
         render_views(torch.tensor(V), torch.tensor(F), [replace(cam, distortion=np.array([0.1, 0, 0, 0, 0]))], ("depth",))
+
+
+def test_gradients_are_bitwise_reproducible():
+    """Registration must give the same numbers on every run: no op on the gradient path may
+    accumulate in a thread-dependent order (advanced-indexing backward does on the CPU)."""
+    from tests.render.scenes import ring_cameras, sphere
+
+    V, F = sphere(4)
+    cams = ring_cameras(4, 64)
+    topo = Topology(torch.from_numpy(F))
+
+    def gradient():
+        x = torch.tensor(V, dtype=torch.float32, requires_grad=True)
+        out = render_views(x, topo, cams, ("normal", "depth"))
+        (out.dense("normal").square().sum() + out.dense("depth").sum()).backward()
+        return x.grad
+
+    first, second = gradient(), gradient()
+    assert torch.count_nonzero(first) > 0
+    assert torch.equal(first, second)

@@ -12,9 +12,11 @@ rule nicp_expression:
         log_json=f"{RESULTS}/{{subject}}/nicp/{{expression}}.json",
     params:
         scans=f"--scans-root {DATA['scans_root']}" + (f" --rt-scale {DATA['rt_scale']}" if DATA.get("rt_scale") else ""),
-        landmarks=NICP.get("landmarks", ""),
-        template_landmarks=(f"--template-landmarks {NICP['template_landmarks']}"
-                            if NICP.get("template_landmarks") else ""),
+        # functions, not strings: Snakemake would fill a string's {subject}/{expression} with this job's
+        # wildcards, but gpja needs the pattern (it also reads the template expression's landmarks)
+        landmarks=lambda wc: NICP.get("landmarks", ""),
+        template_landmarks=lambda wc: (f"--template-landmarks {shlex.quote(NICP['template_landmarks'])}"
+                                       if NICP.get("template_landmarks") else ""),
         settings=json_arg(NICP.get("settings", {})),
         template_dir=f"{RESULTS}/{{subject}}/template",
         template_expression=TEMPLATE_EXPRESSION,

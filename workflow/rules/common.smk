@@ -103,4 +103,5 @@ def all_targets(wildcards):
     targets += expand(f"{RESULTS}/{{subject}}/template/template.obj", subject=SUBJECTS)
     targets += expand(f"{RESULTS}/{{subject}}/{{method}}/metrics/{{expression}}.json", subject=SUBJECTS,
                       method=METHODS, expression=EXPRESSIONS)
+    targets += list(rules.make_tables.output)  # the tables (workflow/rules/report.smk)
     return targets
