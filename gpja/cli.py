@@ -213,13 +213,10 @@ def cmd_nicp(args: argparse.Namespace) -> None:
 def cmd_import(args: argparse.Namespace) -> None:
     from gpja.baselines.external import import_mesh
     from gpja.data.facescape import scan_path
-    from gpja.io import write_json
 
     log = import_mesh(args.pattern, args.subject, args.expression, args.output, transform_pattern=args.transform,
                       texture=args.texture, scan=scan_path(args.scans_root, args.subject, args.expression),
-                      rt_scale=args.rt_scale)
-    log["method"] = args.method
-    write_json(Path(args.output).with_suffix(".json"), log)
+                      rt_scale=args.rt_scale, method=args.method)
     print(f"import: {args.method} {args.subject}/{args.expression} <- {log['source']} "
           f"({log['vertices']} vertices{'' if log['has_uv'] else ', no UVs'})", flush=True)
 

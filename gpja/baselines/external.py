@@ -135,7 +135,8 @@ def check_against_scan(V: np.ndarray, F: np.ndarray, scan_V: np.ndarray, source:
 
 def import_mesh(pattern: str | Path, subject: str, expression: str, out_obj: str | Path,
                 transform_pattern: str | Path | None = None, texture: str | Path | None = None,
-                scan: str | Path | None = None, rt_scale: str | Path | None = None) -> dict:
+                scan: str | Path | None = None, rt_scale: str | Path | None = None,
+                method: str = "external") -> dict:
     """Bring one externally registered mesh into the method's output location.
 
     Args:
@@ -147,6 +148,7 @@ def import_mesh(pattern: str | Path, subject: str, expression: str, out_obj: str
             copied next to the output as ``{stem}.png``, if it has one.
         scan: the expression's scan (PLY) to check size and placement against; None skips it.
         rt_scale: FaceScape's ``Rt_scale_dict.json`` that brings ``scan`` into mm.
+        method: the imported method's name, recorded in the log.
     Returns:
         The log (also written next to the OBJ).
     Raises:
@@ -157,7 +159,7 @@ def import_mesh(pattern: str | Path, subject: str, expression: str, out_obj: str
     out_obj = Path(out_obj)
     path = fill_path_pattern(pattern, subject, expression)
     mesh = read_mesh(path, pattern)
-    log = {"method": "external", "subject": subject, "expression": expression, "source": str(path),
+    log = {"method": method, "subject": subject, "expression": expression, "source": str(path),
            "pattern": str(pattern), "vertices": len(mesh.V), "faces": len(mesh.F), "transform": None}
     if transform_pattern is not None:
         tpath = fill_path_pattern(transform_pattern, subject, expression)
