@@ -245,10 +245,25 @@ def cmd_tables(args: argparse.Namespace) -> None:
     from gpja.report.tables import build_tables, write_table
 
     tables = build_tables(args.results, args.benchmarks, args.subjects, args.methods, args.expressions,
-                          names=args.tables, published=args.published)
+                          names=args.tables, published=args.published, ablation_subjects=args.ablation_subjects,
+                          ablation_expressions=args.ablation_expressions)
     for table in tables:
         paths = write_table(table, args.output_dir)
         print(f"tables: {table.name}: {len(table.csv_rows)} rows -> {', '.join(str(p) for p in paths)}", flush=True)
+
+
+def cmd_figure(args: argparse.Namespace) -> None:
+    from gpja.report.figures import FigureSettings, RunFiles, make_figure
+
+    settings = FigureSettings.from_config(_settings(args.settings))
+    files = RunFiles(results=Path(args.results), images_root=args.images_root and Path(args.images_root),
+                     scans_root=args.scans_root and Path(args.scans_root),
+                     rt_scale=args.rt_scale and Path(args.rt_scale), views=args.views,
+                     cache_dir=args.cache_dir and Path(args.cache_dir), max_image_size=args.max_image_size)
+    start = time.perf_counter()
+    png, pdf = make_figure(args.kind, files, args.subject, args.methods, args.expressions, settings, args.output)
+    print(f"figure: {args.kind} of subject {args.subject} -> {png}, {pdf} ({time.perf_counter() - start:.1f} s)",
+          flush=True)
 
 
 def cmd_check_regression(args: argparse.Namespace) -> int:
@@ -382,8 +397,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help="geometry photometric ablation correspondence timing (default: those the run supports)")
     p.add_argument("--published", choices=["facescape"], default=None,
                    help="print the paper's published FaceScape numbers beside the reproduced ones")
+    p.add_argument("--ablation-subjects", nargs="+", default=None,
+                   help="the subjects the ablation variants ran on (default: --subjects)")
+    p.add_argument("--ablation-expressions", nargs="+", default=None,
+                   help="the expressions the ablation variants ran on (default: --expressions)")
     p.add_argument("--output-dir", required=True, help="results/{dataset}/tables: {table}.csv|md|tex")
     p.set_defaults(func=cmd_tables)
+
+    from gpja.report.figures import FIGURES
+
+    p = sub.add_parser("figure", help="one of the paper's figures for one subject, as PNG and PDF")
+    p.add_argument("kind", choices=FIGURES)
+    p.add_argument("--subject", required=True)
+    p.add_argument("--methods", nargs="+", default=["gpja"], help="columns (geometric_errors); else the first is drawn")
+    p.add_argument("--expressions", nargs="+", required=True)
+    p.add_argument("--results", required=True, help="results/{dataset}")
+    p.add_argument("--images-root", default=None, help="as for `gpja metrics` (photometric figures)")
+    p.add_argument("--scans-root", default=None, help="as for `gpja metrics` (geometry figures)")
+    p.add_argument("--rt-scale", default=None)
+    p.add_argument("--views", nargs="+", default=None)
+    p.add_argument("--max-image-size", type=int, default=None)
+    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
+    p.add_argument("--settings", default="{}", help="JSON: the config's figures section")
+    p.add_argument("--output", required=True, help="the .png; the .pdf is written beside it")
+    p.set_defaults(func=cmd_figure)
 
     p = sub.add_parser("check-regression", help="compare a run's metrics with reference values (exit 1 when worse "
                                                 "beyond tolerance)")

@@ -47,7 +47,7 @@ def test_conda_env_mirrors_pinned_pip_set():
     assert set(pip) == declared
 
 
-@pytest.mark.parametrize("name", ["config.yaml", "ci.yaml", "facescape.yaml"])
+@pytest.mark.parametrize("name", ["config.yaml", "ci.yaml", "facescape.yaml", "paper.yaml"])
 def test_configs_validate_against_schema(name):
     schema = yaml.safe_load((ROOT / "workflow/schemas/config.schema.yaml").read_text())
     jsonschema.validate(yaml.safe_load((ROOT / "config" / name).read_text()), schema)
@@ -81,13 +81,54 @@ def test_dry_run_schedules_synthesis_and_checks(tmp_path):
     with_template = n_expressions + (cfg["registration"]["template_expression"] not in cfg["expressions"])
     assert int(counts["render_scan_targets"]) == n_subjects * with_template
     assert int(counts["build_template"]) == n_subjects
-    methods = cfg["registration"]["methods"]
-    assert int(counts["register_expression"]) == n_subjects * n_expressions * len(methods)
+    ablations = cfg["registration"]["ablations"]
+    n_ablation = (len(ablations["variants"]) * len(ablations["subjects"] or cfg["subjects"])
+                  * len(ablations["expressions"] or cfg["expressions"]))
+    assert n_ablation > 0  # the default run shows the ablations (Table 3, the ablation figures)
+    assert int(counts["register_expression"]) == n_subjects * n_expressions + n_ablation
     baselines = cfg["baselines"]
     n_nicp = n_subjects * n_expressions if baselines["nicp"]["enabled"] else 0
     assert int(counts.get("nicp_expression", 0)) == n_nicp
-    scored = len(methods) + baselines["nicp"]["enabled"] + len(baselines["external"])
-    assert int(counts["compute_metrics"]) == n_subjects * n_expressions * scored
+    compared = 1 + baselines["nicp"]["enabled"] + len(baselines["external"])
+    assert int(counts["compute_metrics"]) == n_subjects * n_expressions * compared + n_ablation
+    for kind in ("template_stages", "geometric_errors", "photometric_errors", "closeups", "convergence"):
+        assert int(counts[f"plot_{kind}"]) == n_subjects, kind
+    assert int(counts["plot_ablation_normal"]) == int(counts["plot_ablation_mask"]) == len(ablations["subjects"])
+    assert int(counts["make_tables"]) == int(counts["make_report"]) == 1
+
+
+def dry_run_jobs(work: Path, *targets: str) -> list[dict]:
+    """The jobs a dry run schedules for ``targets``: rule name and wildcards of each."""
+    out = subprocess.run([*SNAKEMAKE, "-n", "--cores", "2", "--", *targets], cwd=work, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    jobs = []
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", out.stdout):
+        head = re.match(r"(?:local)?rule (\w+):", block.strip())
+        if head:
+            wildcards = re.search(r"wildcards: (.*)", block)
+            pairs = dict(p.split("=", 1) for p in wildcards.group(1).split(", ")) if wildcards else {}
+            jobs.append({"rule": head.group(1), **pairs})
+    return jobs
+
+
+def test_subject_target_schedules_only_that_subject(tmp_path):
+    """README "Per-subject targets": results/{dataset}/{subject}/all.done builds one subject and nothing else."""
+    work = copy_workflow(tmp_path)
+    cfg = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    subject, others = cfg["subjects"][-1], cfg["subjects"][:-1]
+    jobs = dry_run_jobs(work, f"results/{cfg['dataset']}/{subject}/all.done")
+    rules = {j["rule"] for j in jobs}
+    assert {"synthesize_subject", "build_template", "register_expression", "compute_metrics",
+            "plot_geometric_errors", "subject_all"} <= rules
+    assert not rules & {"make_tables", "make_report"}  # tables and the report need every subject
+    assert all(j.get("subject") in (None, subject) for j in jobs), [j for j in jobs if j.get("subject") != subject]
+    assert sum(j["rule"] == "register_expression" for j in jobs) == len(cfg["expressions"])  # no ablations on it
+    assert others and not any(j.get("subject") in others for j in jobs)
+    # the ablation subject gets its variants too
+    ablated = cfg["registration"]["ablations"]["subjects"][0]
+    methods = {j.get("method") for j in dry_run_jobs(work, f"results/{cfg['dataset']}/{ablated}/all.done")}
+    assert set(cfg["registration"]["ablations"]["variants"]) <= methods
 
 
 def test_invalid_config_stops_before_any_rule(tmp_path):
@@ -144,9 +185,16 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
             assert 0.05 < targets["coverage"].mean() < 0.9  # the head, not empty, not everything
             assert 400 < np.median(targets["depth"][targets["coverage"][..., 0] > 0.99]) < 800  # rig ~600 mm away
     tables = work / f"results/{cfg['dataset']}/tables"
-    for name in ("geometry", "photometric", "correspondence", "timing"):
+    for name in ("geometry", "photometric", "ablation", "correspondence", "timing"):
         for suffix in ("csv", "md", "tex"):
             assert (tables / f"{name}.{suffix}").is_file(), f"{name}.{suffix}"
+    figures = work / f"results/{cfg['dataset']}/figures"
+    for kind in ("template_stages", "geometric_errors", "photometric_errors", "closeups", "convergence",
+                 "ablation_mask"):
+        for suffix in ("png", "pdf"):
+            assert (figures / f"{kind}_S01.{suffix}").stat().st_size > 10_000, f"{kind}.{suffix}"
+    report = (work / f"results/{cfg['dataset']}/report.html").read_text(errors="replace")
+    assert "closeups_S01.png" in report and "geometry.md" in report  # figures and tables in the HTML report
     # the maintainers' regression gate: every metric within tolerance of the committed reference
     check = subprocess.run([str(Path(sys.executable).parent / "gpja"), "check-regression", "--metrics",
                             str(work / f"results/{cfg['dataset']}"), "--reference", str(CI_REFERENCE)],

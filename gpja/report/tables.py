@@ -625,22 +625,28 @@ def benchmark_row(step: str, samples: list) -> list:
     return timing_row(step, "benchmark", [s for s, _ in samples], [r for _, r in samples], [])
 
 
-def timing_table(results: str | Path, benchmarks: str | Path, run: Run) -> Table:
+def timing_table(results: str | Path, benchmarks: str | Path, run: Run, extra_runs=()) -> Table:
     """Per step: median/max wall-clock seconds and max RSS of its jobs; the registration logs' own seconds.
 
     Rows: the data steps, then per method its registration jobs, the seconds its logs report (per level
-    for GPJA) and its metrics jobs. Steps without benchmark TSVs are left out.
+    for GPJA) and its metrics jobs. Steps without benchmark TSVs are left out. ``extra_runs`` (e.g. the
+    ablations, run on fewer subjects or expressions) add rows for methods ``run`` does not have.
     """
     steps = collect_benchmarks(benchmarks, run.subjects, run.methods, run.expressions)
     data = sorted((step for method, step in steps if not method), key=data_step_order)
     rows = [benchmark_row(step, steps[("", step)]) for step in data]
-    for method in run.methods:
-        if (method, "registration") in steps:
-            rows.append(benchmark_row(f"{method_label(method)} registration", steps[(method, "registration")]))
-        logs = load_logs(results, run.subjects, method, run.expressions)
-        rows += [timing_row(name, "log", secs, [], verts) for name, secs, verts in log_rows(method, logs)]
-        if (method, "metrics") in steps:
-            rows.append(benchmark_row(f"{method_label(method)} metrics", steps[(method, "metrics")]))
+    done = set()
+    for part in (run, *extra_runs):
+        part_steps = steps if part is run else collect_benchmarks(benchmarks, part.subjects, part.methods,
+                                                                  part.expressions)
+        for method in (m for m in part.methods if m not in done):
+            done.add(method)
+            if (method, "registration") in part_steps:
+                rows.append(benchmark_row(f"{method_label(method)} registration", part_steps[(method, "registration")]))
+            logs = load_logs(results, part.subjects, method, part.expressions)
+            rows += [timing_row(name, "log", secs, [], verts) for name, secs, verts in log_rows(method, logs)]
+            if (method, "metrics") in part_steps:
+                rows.append(benchmark_row(f"{method_label(method)} metrics", part_steps[(method, "metrics")]))
     block = Block(headers=["Step", "Source", "Jobs", "Median (s)", "Max (s)", "Max RSS (MB)", "Vertices"],
                   rows=rows, label_columns=2)
     csv_header = ["step", "source", "jobs", "median_s", "max_s", "max_rss_mb", "vertices"]
@@ -783,11 +789,11 @@ def write_table(table: Table, out_dir: str | Path) -> list[Path]:
 # Entry point
 
 
-def default_tables(run: Run) -> list[str]:
+def default_tables(run: Run, ablation_run: Run | None = None) -> list[str]:
     """The tables a run supports: geometry, photometric and timing; ablation with ablation variants;
     correspondence when a metrics JSON has correspondence scores."""
     names = ["geometry", "photometric"]
-    if any(m in ABLATION_CONSTRAINTS for m in run.methods):
+    if any(m in ABLATION_CONSTRAINTS for m in (ablation_run or run).methods):
         names.append("ablation")
     if any(CORRESPONDENCE_NAMES[0] in v for v in run.values.values()):
         names.append("correspondence")
@@ -795,17 +801,32 @@ def default_tables(run: Run) -> list[str]:
 
 
 def build_tables(results: str | Path, benchmarks: str | Path, subjects, methods, expressions,
-                 names=None, published: str | None = None) -> list[Table]:
-    """The requested tables (default: :func:`default_tables`) of a run; ``published``: ``"facescape"`` or None."""
+                 names=None, published: str | None = None, ablation_subjects=None,
+                 ablation_expressions=None) -> list[Table]:
+    """The requested tables (default: :func:`default_tables`) of a run; ``published``: ``"facescape"`` or None.
+
+    Every method is read for every subject and expression, unless ``ablation_subjects`` or
+    ``ablation_expressions`` is given: then the ablation variants (and ``gpja`` beside them, in Table 3)
+    are read on those only (default: all), and Tables 1-2 hold the other methods.
+    """
     if published is not None and published not in PUBLISHED_CHOICES:
         raise InputError("--published", f"unknown {published!r}; choose from {', '.join(PUBLISHED_CHOICES)}")
     unknown = [n for n in names or [] if n not in TABLE_NAMES]
     if unknown:
         raise InputError("--tables", f"unknown table(s) {', '.join(unknown)}; choose from {', '.join(TABLE_NAMES)}")
-    run = load_run(results, subjects, methods, expressions)
+    if ablation_subjects is None and ablation_expressions is None:
+        run = ablation_run = load_run(results, subjects, methods, expressions)
+    else:
+        variants = [m for m in methods if m in ABLATION_CONSTRAINTS]
+        run = load_run(results, subjects, [m for m in methods if m not in ABLATION_CONSTRAINTS], expressions)
+        ablation_run = (load_run(results, ablation_subjects or subjects, ["gpja", *variants],
+                                 ablation_expressions or expressions) if variants else None)
+    if "ablation" in (names or []) and ablation_run is None:
+        raise InputError("--tables", "the ablation table needs ablation variants (gpja-no_*) in --methods")
+    extra = [ablation_run] if ablation_run is not None and ablation_run is not run else []
     builders = {"geometry": lambda: geometry_table(run, published),
                 "photometric": lambda: photometric_table(run, published),
-                "ablation": lambda: ablation_table(run, published),
+                "ablation": lambda: ablation_table(ablation_run, published),
                 "correspondence": lambda: correspondence_table(run),
-                "timing": lambda: timing_table(results, benchmarks, run)}
-    return [builders[name]() for name in (names or default_tables(run))]
+                "timing": lambda: timing_table(results, benchmarks, run, extra)}
+    return [builders[name]() for name in (names or default_tables(run, ablation_run))]

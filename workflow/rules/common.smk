@@ -15,9 +15,16 @@ BASELINES = config.get("baselines", {})
 NICP = BASELINES.get("nicp", {"enabled": False})
 # imported methods by name: {pattern, transform, texture}
 EXTERNAL = {m["name"]: m for m in BASELINES.get("external", [])}
-REGISTRATION_METHODS = list(REG["methods"])
-METHODS = REGISTRATION_METHODS + (["nicp"] if NICP.get("enabled") else []) + list(EXTERNAL)
+ABLATION = REG.get("ablations") or {"variants": []}
+ABLATION_VARIANTS = list(ABLATION["variants"])
+ABLATION_SUBJECTS = [str(s) for s in ABLATION.get("subjects") or SUBJECTS]
+ABLATION_EXPRESSIONS = list(ABLATION.get("expressions") or EXPRESSIONS)
+REGISTRATION_METHODS = ["gpja"] + ABLATION_VARIANTS
+# the methods of the comparison (Tables 1-2): GPJA, NICP, imported meshes; each runs on every (subject, expression)
+COMPARED = ["gpja"] + (["nicp"] if NICP.get("enabled") else []) + list(EXTERNAL)
+METHODS = COMPARED + ABLATION_VARIANTS
 RESULTS = f"results/{DATASET}"
+REPORT_HTML = f"{RESULTS}/report.html"
 LOGS = f"logs/{DATASET}"
 BENCH = f"benchmarks/{DATASET}"
 
@@ -94,14 +101,34 @@ def without_args(wildcards):
     return "--without " + " ".join(off) if off else ""
 
 
-def all_targets(wildcards):
-    """Every output the current stages produce."""
-    targets = expand(f"{RESULTS}/{{subject}}/data/{{expression}}.json", subject=SUBJECTS, expression=EXPRESSIONS)
-    targets += expand(f"{RESULTS}/{{subject}}/targets/{{expression}}.npz", subject=SUBJECTS, expression=EXPRESSIONS)
+def runs(subject=None):
+    """Every (subject, method, expression) the configuration registers and scores: the compared methods on
+    every subject and expression, the ablation variants on their subjects and expressions."""
+    combos = [(s, m, e) for s in SUBJECTS for m in COMPARED for e in EXPRESSIONS]
+    combos += [(s, m, e) for s in ABLATION_SUBJECTS for m in ABLATION_VARIANTS for e in ABLATION_EXPRESSIONS
+               if s in SUBJECTS and e in EXPRESSIONS]
+    return [c for c in combos if subject is None or c[0] == subject]
+
+
+def metrics_files(subject=None):
+    return [f"{RESULTS}/{s}/{m}/metrics/{e}.json" for s, m, e in runs(subject)]
+
+
+def subject_targets(subject):
+    """Everything one subject contributes: data checks, scan targets, template, every run's metrics, its figures."""
+    targets = [f"{RESULTS}/{subject}/data/{e}.json" for e in EXPRESSIONS]
+    targets += [f"{RESULTS}/{subject}/targets/{e}.npz" for e in EXPRESSIONS]
     if SYNTH["enabled"]:
-        targets += expand(f"{RESULTS}/{{subject}}/contact_sheet.png", subject=SUBJECTS)
-    targets += expand(f"{RESULTS}/{{subject}}/template/template.obj", subject=SUBJECTS)
-    targets += expand(f"{RESULTS}/{{subject}}/{{method}}/metrics/{{expression}}.json", subject=SUBJECTS,
-                      method=METHODS, expression=EXPRESSIONS)
+        targets.append(f"{RESULTS}/{subject}/contact_sheet.png")
+    targets.append(f"{RESULTS}/{subject}/template/template.obj")
+    targets += metrics_files(subject)
+    targets += subject_figures(subject)  # workflow/rules/figures.smk
+    return targets
+
+
+def all_targets(wildcards):
+    """Every output: each subject's, then the tables and the HTML report built from all of them."""
+    targets = [t for s in SUBJECTS for t in subject_targets(s)]
     targets += list(rules.make_tables.output)  # the tables (workflow/rules/report.smk)
+    targets.append(REPORT_HTML)
     return targets

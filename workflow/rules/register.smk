@@ -73,7 +73,9 @@ rule register_expression:
         f"{LOGS}/{{subject}}/{{method}}/{{expression}}.log",
     benchmark:
         f"{BENCH}/{{subject}}/{{method}}/{{expression}}.tsv"
-    threads: 2
+    # one thread each: two registrations side by side on 2 cores finish 1.37x sooner than one after the other
+    # on 2 threads (README "Runtime"); --set-threads register_expression=2 speeds up a single expression
+    threads: 1
     resources:
         mem_mb=6000,
         runtime=30,

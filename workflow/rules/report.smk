@@ -1,9 +1,10 @@
-# Stage 5, report: the paper's tables (geometry, photometry, ablations, correspondence, timing) from every metrics JSON.
+# Stage 5, report: the paper's tables (geometry, photometry, ablations, correspondence, timing) from every metrics JSON,
+# and the HTML report of every table and figure.
 
 # tables this configuration can fill: ablations only with ablation variants, correspondence only with synthetic
 # ground truth (the condition under which `gpja metrics` scores it)
 TABLES = ["geometry", "photometric"]
-TABLES += ["ablation"] if any(m in ABLATIONS and m != "gpja" for m in METHODS) else []
+TABLES += ["ablation"] if ABLATION_VARIANTS else []
 TABLES += ["correspondence"] if DATA.get("ground_truth_root") and not DATA.get("rt_scale") else []
 TABLES += ["timing"]
 TABLES_DIR = f"{RESULTS}/tables"
@@ -22,9 +23,7 @@ def table_outputs():
 
 def table_inputs(wildcards):
     """Every metrics JSON, and the registration logs the timing table reads."""
-    combos = dict(subject=SUBJECTS, method=METHODS, expression=EXPRESSIONS)
-    return {"metrics": expand(f"{RESULTS}/{{subject}}/{{method}}/metrics/{{expression}}.json", **combos),
-            "logs": expand(f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.json", **combos)}
+    return {"metrics": metrics_files(), "logs": [f"{RESULTS}/{s}/{m}/{e}.json" for s, m, e in runs()]}
 
 
 rule make_tables:
@@ -41,6 +40,8 @@ rule make_tables:
         methods=METHODS,
         tables=TABLES,
         published="--published facescape" if DATASET == "facescape" else "",
+        ablation=(f"--ablation-subjects {shlex.join(ABLATION_SUBJECTS)} --ablation-expressions "
+                  f"{shlex.join(ABLATION_EXPRESSIONS)}" if ABLATION_VARIANTS else ""),
         out_dir=TABLES_DIR,
     log:
         f"{LOGS}/make_tables.log",
@@ -53,4 +54,50 @@ rule make_tables:
     shell:
         "gpja --threads {threads} tables --results {params.results} --benchmarks {params.benchmarks}"
         " --subjects {params.subjects:q} --expressions {params.expressions:q} --methods {params.methods:q}"
-        " --tables {params.tables} {params.published} --output-dir {params.out_dir} > {log} 2>&1"
+        " --tables {params.tables} {params.published} {params.ablation} --output-dir {params.out_dir} > {log} 2>&1"
+
+
+rule make_report:
+    """The Snakemake HTML report of every table and figure (the same as `snakemake --report`), written last."""
+    input:
+        [t for s in SUBJECTS for t in subject_targets(s)],
+        rules.make_tables.output,
+    output:
+        REPORT_HTML,
+    params:
+        snakefile=workflow.main_snakefile,
+        # the run's own configuration (after --configfile/--config), so the report shows this run's files
+        config=lambda wc: json.dumps(config, sort_keys=True),
+        targets=lambda wc: shlex.join([t for s in SUBJECTS for t in subject_targets(s)] + list(rules.make_tables.output)),
+    log:
+        f"{LOGS}/make_report.log",
+    benchmark:
+        f"{BENCH}/make_report.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    shell:
+        # Snakemake reads the provenance of the finished jobs from .snakemake/ (no lock needed: read only)
+        "printf '%s' {params.config:q} > {output}.config.json"
+        " && snakemake --snakefile {params.snakefile} {params.targets} --nolock --configfile {output}.config.json"
+        " --report {output} > {log} 2>&1; status=$?; rm -f {output}.config.json; exit $status"
+
+
+rule subject_all:
+    """Everything of one subject (data checks, template, every registration and its metrics, its figures):
+    `snakemake --cores 2 results/{dataset}/{subject}/all.done` rebuilds that subject only."""
+    input:
+        lambda wc: subject_targets(wc.subject),
+    output:
+        touch(f"{RESULTS}/{{subject}}/all.done"),
+    log:
+        f"{LOGS}/{{subject}}/subject_all.log",
+    benchmark:
+        f"{BENCH}/{{subject}}/subject_all.tsv"
+    threads: 1
+    resources:
+        mem_mb=100,
+        runtime=1,
+    shell:
+        "echo 'subject {wildcards.subject}: {input}' > {log}"
