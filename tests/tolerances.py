@@ -61,3 +61,9 @@ NICP_MIN_DISTANCE_REDUCTION = 10.0
 #: Template vertices the open scan does not cover (the back) stay this close to the full
 #: bumped ellipsoid, mm: bump height (4 mm) plus slack; dragging onto the scan's rim is ~30 mm.
 NICP_BACK_OF_HEAD_MM = 6.0
+
+# --- report (figures) ---
+#: Projection of a framed point set's centre onto the image centre, px (float64 pinhole).
+FIGURE_CENTRE_PX = 1e-6
+#: A constant per-vertex value interpolated by the renderer (float32 barycentrics).
+INTERPOLATED_CONSTANT = 1e-5
