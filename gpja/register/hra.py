@@ -84,18 +84,46 @@ def passes_for(constraint: str, switches: Switches) -> tuple[str, ...]:
     return (constraint,)
 
 
-def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTargets, switches: Switches) -> torch.Tensor:
+def pooled_color_l1(out: RenderOutput, targets: ExpressionTargets, weight_pass: str, pool: int) -> torch.Tensor:
+    """Mean L1 of the weighted colour after ``pool x pool`` box averaging of render and reference.
+
+    The comparison at a coarser image scale (beyond the paper, off by default): a feature that is many
+    pixels from its place in the reference (a lip left at the template's open position) still overlaps
+    it after pooling, so the colour gradient reaches it.
+
+    Args:
+        out: a render with the "color" pass and ``weight_pass`` ("mask" or "coverage").
+        pool: box size in pixels (> 1).
+    Returns:
+        scalar tensor: sum |pool(w * render) - pool(w * reference)| / (3 * sum pool(w)).
+    """
+    import torch.nn.functional as F
+
+    weight = out.dense(weight_pass)  # (B, H, W, 1)
+    render = (out.dense("color") * weight).permute(0, 3, 1, 2)
+    reference = (targets.images.to(render.dtype) * weight).permute(0, 3, 1, 2)
+    diff = F.avg_pool2d(render, pool, ceil_mode=True) - F.avg_pool2d(reference, pool, ceil_mode=True)
+    total = F.avg_pool2d(weight.detach().permute(0, 3, 1, 2), pool, ceil_mode=True).sum()
+    return diff.abs().sum() / total.clamp_min(1e-6) / 3.0
+
+
+def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTargets, switches: Switches,
+                    color_pool: int = 1) -> torch.Tensor:
     """Mean absolute difference of one constraint over the pixels it counts.
 
     Args:
         constraint: "color", "depth" or "normal".
         out: a render with the passes from ``passes_for``.
+        color_pool: compare colours after box-averaging this many pixels (1 = per pixel, the paper).
     Returns:
         scalar tensor (differentiable in the render).
     """
     if constraint == "color":
         # the mask pass is 0 on the mouth interior and on the background, 1 on the rest of the head
-        weight = out.values["mask"] if switches.mask else out.values["coverage"]
+        weight_pass = "mask" if switches.mask else "coverage"
+        if color_pool > 1:
+            return pooled_color_l1(out, targets, weight_pass, color_pool)
+        weight = out.values[weight_pass]
         loss = image_l1(out, "color", targets.images, weight=weight)
         return loss / weight.detach().sum().clamp_min(1.0) / 3.0
     target = targets.depth if constraint == "depth" else targets.normal
@@ -120,7 +148,7 @@ def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTarge
 
 def render_constraint(constraint: str, V: torch.Tensor, topology: Topology, targets: ExpressionTargets,
                       switches: Switches, uv: torch.Tensor, texture: torch.Tensor, mask_texture: torch.Tensor,
-                      render=None, cull_backfaces: bool = True) -> tuple[torch.Tensor, RenderOutput]:
+                      render=None, cull_backfaces: bool = True, color_pool: int = 1) -> tuple[torch.Tensor, RenderOutput]:
     """Render what one constraint needs and return its loss and the render.
 
     ``cull_backfaces``: the template is a closed surface, so back faces are never
@@ -131,4 +159,4 @@ def render_constraint(constraint: str, V: torch.Tensor, topology: Topology, targ
     render = render or render_views
     out = render(V, topology, targets.cameras, passes_for(constraint, switches), uv=uv, texture=texture,
                  mask_texture=mask_texture, sh=targets.sh, cull_backfaces=cull_backfaces)
-    return constraint_loss(constraint, out, targets, switches), out
+    return constraint_loss(constraint, out, targets, switches, color_pool), out

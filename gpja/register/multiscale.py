@@ -48,6 +48,8 @@ class Schedule:
         lr_decay: ratio of a level's last learning rate to its first, decayed geometrically over the
             level's iterations (1 = constant, the paper). Uniform Adam with a constant step keeps
             oscillating by about a step; short schedules take large steps and need the decay to settle.
+        color_pool: per level, the box (px) colours are averaged over before the colour constraint
+            compares them (1 = per pixel, the paper; None = 1 at every level).
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -55,10 +57,18 @@ class Schedule:
     refine_factor: float = 2.5
     lr_fraction: float = 0.1
     lr_decay: float = 1.0
+    color_pool: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         if len(self.lambdas) != len(self.iterations) or not self.lambdas:
             raise ValueError("lambdas and iterations need one entry per level")
+        if self.color_pool is not None and (len(self.color_pool) != len(self.lambdas)
+                                            or any(int(p) < 1 for p in self.color_pool)):
+            raise ValueError(f"color_pool needs one entry >= 1 per level, got {self.color_pool}")
+
+    def pool(self, level: int) -> int:
+        """The colour constraint's pooling box (px) at ``level``."""
+        return 1 if self.color_pool is None else int(self.color_pool[level])
         if not 0.0 < self.lr_decay <= 1.0:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
 
@@ -120,7 +130,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
             x = param.vertices()
             t1 = time.perf_counter()
             loss, _ = render_constraint(constraint, x, topo, targets, switches, uv, texture, mask_texture,
-                                        render=render, cull_backfaces=cull_backfaces)
+                                        render=render, cull_backfaces=cull_backfaces,
+                                        color_pool=schedule.pool(level))
             value = loss.detach().item()
             if not math.isfinite(value):
                 raise RegistrationDiverged(f"level {level}, iteration {it}: the {constraint} loss is {value}")
@@ -142,6 +153,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         with torch.no_grad():
             mesh = mesh.with_vertices(param.vertices().double().numpy())
         log.levels.append({"level": level, "lambda": lam, "iterations": n_iter, "learning_rate_mm": lr,
+                           "color_pool": schedule.pool(level),
                            "vertices": int(len(mesh.V)), "faces": int(len(mesh.F)),
                            "seconds": round(time.perf_counter() - start, 3), "setup_seconds": round(setup_s, 3),
                            "seconds_by_stage": {k: round(v, 3) for k, v in timings.items()}, "losses": losses})
