@@ -64,12 +64,8 @@ rule render_scan_targets:
         unpack(expression_inputs),
     output:
         targets=f"{RESULTS}/{{subject}}/targets/{{expression}}.npz",
-        preview=report(
-            f"{RESULTS}/{{subject}}/targets/{{expression}}.png",
-            caption="../report/scan_targets.rst",
-            category="Data",
-            labels={"subject": "{subject}", "expression": "{expression}", "figure": "scan targets"},
-        ),
+        # a diagnostic preview, left out of the HTML report (1.7 MB each would dominate it)
+        preview=f"{RESULTS}/{{subject}}/targets/{{expression}}.png",
     params:
         data=data_args(),
         cache=f"{RESULTS}/undistorted",

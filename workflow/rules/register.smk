@@ -41,6 +41,7 @@ rule build_template:
     benchmark:
         f"{BENCH}/{{subject}}/build_template.tsv"
     threads: 2
+    priority: 20  # every registration of the subject waits for it
     resources:
         mem_mb=6000,
         runtime=30,
@@ -76,6 +77,7 @@ rule register_expression:
     # one thread each: two registrations side by side on 2 cores finish 1.37x sooner than one after the other
     # on 2 threads (README "Runtime"); --set-threads register_expression=2 speeds up a single expression
     threads: 1
+    priority: 10  # the longest jobs: start them as soon as they can run, let short ones fill the gaps
     resources:
         mem_mb=6000,
         runtime=30,
