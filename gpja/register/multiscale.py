@@ -65,12 +65,12 @@ class Schedule:
         if self.color_pool is not None and (len(self.color_pool) != len(self.lambdas)
                                             or any(int(p) < 1 for p in self.color_pool)):
             raise ValueError(f"color_pool needs one entry >= 1 per level, got {self.color_pool}")
+        if not 0.0 < self.lr_decay <= 1.0:
+            raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
 
     def pool(self, level: int) -> int:
         """The colour constraint's pooling box (px) at ``level``."""
         return 1 if self.color_pool is None else int(self.color_pool[level])
-        if not 0.0 < self.lr_decay <= 1.0:
-            raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
 
     def learning_rate(self, base: float, iteration: int, n_iterations: int) -> float:
         """The step of ``iteration`` of a level whose first step is ``base`` (geometric decay)."""
