@@ -109,9 +109,10 @@ def save_figure(fig, png_path: str | Path) -> tuple[Path, Path]:
     png = Path(png_path)
     pdf = png.with_suffix(".pdf")
     try:
-        for path, fmt in ((png, "png"), (pdf, "pdf")):
-            with atomic_path(path) as tmp:
-                fig.savefig(tmp, format=fmt, dpi=150, bbox_inches="tight")
+        # both land or neither does
+        with atomic_path(png) as tmp_png, atomic_path(pdf) as tmp_pdf:
+            fig.savefig(tmp_png, format="png", dpi=150, bbox_inches="tight")
+            fig.savefig(tmp_pdf, format="pdf", bbox_inches="tight")
     finally:
         plt.close(fig)
     return png, pdf
@@ -340,7 +341,6 @@ def plot_geometric_errors(files: RunFiles, subject: str, methods: Sequence[str],
                           settings: FigureSettings, output: str | Path):
     """Rows: expressions; columns: methods; the scan coloured by its distance to each method's mesh."""
     import matplotlib
-    import matplotlib.pyplot as plt
 
     fig, axes = new_grid(len(expressions), len(methods))
     for i, expression in enumerate(expressions):
@@ -362,7 +362,6 @@ def plot_geometric_errors(files: RunFiles, subject: str, methods: Sequence[str],
     bar = fig.colorbar(mappable, ax=axes.ravel().tolist(), shrink=0.8, pad=0.02)
     bar.set_label(f"scan-to-mesh distance (mm, clipped at {settings.heatmap_max_mm:g})")
     set_title(fig, f"Geometric error, subject {subject}", fontsize=10)
-    del plt
     return save_figure(fig, output)
 
 
@@ -415,9 +414,9 @@ def plot_photometric_errors(files: RunFiles, subject: str, method: str, expressi
 
 def mouth_centre(mesh, mask: np.ndarray) -> np.ndarray:
     """(3,) mean position (mm) of the mesh's mouth-socket vertices: faces whose UV centre lies where B = 0."""
-    from gpja.render.texture import sample_texture
-
     import torch
+
+    from gpja.render.texture import sample_texture
 
     centre_uv = mesh.UV[mesh.F_uv].mean(axis=1)
     with torch.no_grad():

@@ -127,3 +127,20 @@ def test_convergence_figure_writes_png_and_pdf(tmp_path):
                               FG.FigureSettings(), tmp_path / "fig" / "convergence_S01.png")
     assert png.read_bytes()[:4] == b"\x89PNG" and pdf.read_bytes()[:4] == b"%PDF"
     assert sorted(p.name for p in (tmp_path / "fig").iterdir()) == ["convergence_S01.pdf", "convergence_S01.png"]
+
+
+def test_a_figure_that_fails_to_save_leaves_no_file(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    fig, _ = FG.new_grid(1, 1)
+    real = matplotlib.figure.Figure.savefig
+
+    def fail_on_pdf(self, fname, *args, format=None, **kwargs):
+        if format == "pdf":
+            raise OSError("disk full")
+        return real(self, fname, *args, format=format, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", fail_on_pdf)
+    with pytest.raises(OSError, match="disk full"):
+        FG.save_figure(fig, tmp_path / "f.png")
+    assert list(tmp_path.iterdir()) == []
