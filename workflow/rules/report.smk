@@ -79,9 +79,10 @@ rule make_report:
         runtime=10,
     shell:
         # Snakemake reads the provenance of the finished jobs from .snakemake/ (no lock needed: read only)
-        "printf '%s' {params.config:q} > {output}.config.json"
-        " && snakemake --snakefile {params.snakefile} {params.targets} --nolock --configfile {output}.config.json"
-        " --report {output} > {log} 2>&1; status=$?; rm -f {output}.config.json; exit $status"
+        # (the shell runs under `set -e`: keep the status so the temporary config goes either way)
+        "printf '%s' {params.config:q} > {output}.config.json; status=0"
+        "; snakemake --snakefile {params.snakefile} {params.targets} --nolock --configfile {output}.config.json"
+        " --report {output} > {log} 2>&1 || status=$?; rm -f {output}.config.json; exit $status"
 
 
 rule subject_all:
