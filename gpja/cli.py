@@ -25,9 +25,9 @@ def subject_seed_index(subject: str) -> int:
     return zlib.crc32(str(subject).encode("utf-8")) & 0x7FFFFFFF
 
 
-def _add_data_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--images-root", required=True, help="FaceScape multiview root: {root}/{subject}/{expression}/{view}.jpg|png")
-    p.add_argument("--scans-root", required=True, help="raw scans: {root}/{subject}/{expression}.ply")
+def _add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
+    p.add_argument("--images-root", required=required, help="FaceScape multiview root: {root}/{subject}/{expression}/{view}.jpg|png")
+    p.add_argument("--scans-root", required=required, help="raw scans: {root}/{subject}/{expression}.ply")
     p.add_argument("--rt-scale", default=None, help="FaceScape Rt_scale_dict.json (omit when data is in mm)")
     p.add_argument("--views", nargs="+", default=None, help="view names to use (default: all valid)")
     p.add_argument("--max-image-size", type=int, default=None, help="downsample images to this longer side")
@@ -413,11 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", nargs="+", default=["gpja"], help="columns (geometric_errors); else the first is drawn")
     p.add_argument("--expressions", nargs="+", required=True)
     p.add_argument("--results", required=True, help="results/{dataset}")
-    p.add_argument("--images-root", default=None, help="as for `gpja metrics` (photometric figures)")
-    p.add_argument("--scans-root", default=None, help="as for `gpja metrics` (geometry figures)")
-    p.add_argument("--rt-scale", default=None)
-    p.add_argument("--views", nargs="+", default=None)
-    p.add_argument("--max-image-size", type=int, default=None)
+    _add_data_args(p, required=False)  # images for the photometric figures, scans for the geometric ones
     p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
     p.add_argument("--settings", default="{}", help="JSON: the config's figures section")
     p.add_argument("--output", required=True, help="the .png; the .pdf is written beside it")

@@ -321,8 +321,7 @@ def plot_template_stages(files: RunFiles, subject: str, settings: FigureSettings
     panels = [("(a) genus-0 bust", bust), ("(b) fitted, textured", fitted), ("(c) template", template)]
     fig, axes = new_grid(1, 5, panel_in=2.6)
     for ax, (title, mesh) in zip(axes[0], panels):
-        tex = mesh.texture if mesh.texture is not None else (texture if mesh.has_uv and mesh is not bust else None)
-        r = render_surface(mesh.V, mesh.F, camera, uv=mesh.UV, uv_faces=mesh.F_uv, texture=tex)
+        r = render_surface(mesh.V, mesh.F, camera, uv=mesh.UV, uv_faces=mesh.F_uv, texture=mesh.texture)
         img = (np.where(r.coverage[..., None], r.color * (0.45 + 0.55 * r.shade[..., None]), 1.0)
                if r.color is not None else shaded_image(r))
         ax.imshow(np.clip(img, 0, 1))

@@ -68,7 +68,6 @@ rule make_report:
         snakefile=workflow.main_snakefile,
         # the run's own configuration (after --configfile/--config), so the report shows this run's files
         config=lambda wc: json.dumps(config, sort_keys=True),
-        targets=lambda wc: shlex.join([t for s in SUBJECTS for t in subject_targets(s)] + list(rules.make_tables.output)),
     log:
         f"{LOGS}/make_report.log",
     benchmark:
@@ -81,7 +80,7 @@ rule make_report:
         # Snakemake reads the provenance of the finished jobs from .snakemake/ (no lock needed: read only)
         # (the shell runs under `set -e`: keep the status so the temporary config goes either way)
         "printf '%s' {params.config:q} > {output}.config.json; status=0"
-        "; snakemake --snakefile {params.snakefile} {params.targets} --nolock --configfile {output}.config.json"
+        "; snakemake --snakefile {params.snakefile} {input:q} --nolock --configfile {output}.config.json"
         " --report {output} > {log} 2>&1 || status=$?; rm -f {output}.config.json; exit $status"
 
 
