@@ -77,7 +77,7 @@ def main() -> None:
     start = time.perf_counter()
     mesh, log = register(template, mask, targets, _schedule(settings), Switches(), progress=lambda m: print(m, file=sys.stderr))
     seconds = time.perf_counter() - start
-    levels = [{"level": lv["level"] + 1, "vertices": lv["vertices"], "iterations": lv["iterations"],
+    levels = [{"level": lv["level"] + 1 if lv.get("stage") != "warmup" else "warm-up", "vertices": lv["vertices"], "iterations": lv["iterations"],
                "seconds": lv["seconds"], "setup_seconds": lv["setup_seconds"],
                "iterations_per_second": round(lv["iterations"] / max(lv["seconds"] - lv["setup_seconds"], 1e-9), 2),
                "seconds_by_stage": lv["seconds_by_stage"]} for lv in log.levels]

@@ -157,7 +157,8 @@ def _schedule(cfg: dict):
     return Schedule(lambdas=tuple(float(x) for x in cfg["lambdas"]), iterations=tuple(int(x) for x in cfg["iterations"]),
                     refine_factor=float(cfg.get("refine_factor", 2.5)), lr_fraction=float(cfg.get("lr_fraction", 0.1)),
                     lr_decay=float(cfg.get("lr_decay", 1.0)),
-                    color_pool=tuple(int(p) for p in cfg["color_pool"]) if cfg.get("color_pool") else None)
+                    color_pool=tuple(int(p) for p in cfg["color_pool"]) if cfg.get("color_pool") else None,
+                    warmup_iterations=int(cfg.get("warmup_iterations", 0)))
 
 
 def cmd_template(args: argparse.Namespace) -> None:

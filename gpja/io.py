@@ -84,6 +84,11 @@ def to_uint8(img: np.ndarray) -> np.ndarray:
     return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
+def from_uint8(img: np.ndarray) -> np.ndarray:
+    """uint8 image to float32 in [0, 1]; ``from_uint8(to_uint8(x))`` is what a PNG round trip gives."""
+    return np.asarray(img, dtype=np.uint8).astype(np.float32) / 255.0
+
+
 def write_image(path: str | Path, img: np.ndarray) -> None:
     """Write an image atomically; format from the suffix (PNG lossless, JPEG q95).
 
@@ -116,7 +121,7 @@ def read_image(path: str | Path, mode: str = "RGB") -> np.ndarray:
             arr = np.asarray(im.convert(mode))
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
         raise InputError(path, f"corrupt or unreadable image ({err})") from None
-    return arr.astype(np.float32) / 255.0
+    return from_uint8(arr)
 
 
 def write_npz(path: str | Path, **arrays: np.ndarray) -> None:

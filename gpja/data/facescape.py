@@ -23,7 +23,7 @@ import numpy as np
 
 from gpja.camera import Camera
 from gpja.errors import InputError
-from gpja.io import read_image, read_json, write_image
+from gpja.io import from_uint8, read_image, read_json, to_uint8, write_image
 from gpja.mesh import read_ply
 
 log = logging.getLogger(__name__)
@@ -175,6 +175,10 @@ def load_view_image(camera: Camera, path: Path, cache_dir: Path | None = None) -
 
     With ``cache_dir`` the undistorted image is stored there as PNG and reused
     while it is newer than its source, so undistortion runs once per image.
+    The undistorted image is always quantised to 8 bits, as the PNG cache
+    stores it: otherwise the job that happens to fill the cache would see
+    different colours from every job that reads it, and results would depend
+    on the order the workflow ran its jobs in.
     """
     cached = None if cache_dir is None else Path(cache_dir) / f"{camera.name}.png"
     if cached is not None and cached.is_file() and cached.stat().st_mtime >= path.stat().st_mtime:
@@ -184,7 +188,7 @@ def load_view_image(camera: Camera, path: Path, cache_dir: Path | None = None) -
     image = read_image(path)
     if image.shape[:2] != (camera.height, camera.width):
         raise InputError(path, f"image is {image.shape[1]}x{image.shape[0]} but params.json says {camera.width}x{camera.height}")
-    image = camera.undistort_image(image)
+    image = from_uint8(to_uint8(camera.undistort_image(image)))
     if cached is not None and camera.has_distortion:
         write_image(cached, image)
     return image

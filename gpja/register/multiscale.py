@@ -13,6 +13,16 @@ a tenth of an edge, and the step shrinks as the mesh is refined. The paper
 runs 1500 iterations; a shorter schedule (the default config's 3 x 150) takes
 proportionally larger steps (``lr_fraction``) that decay within each level
 (``lr_decay``), see README "Registration settings".
+
+Correspondence warm-up (beyond the paper, ``Schedule.warmup_iterations``):
+the template is built from the mouth-open expression, and for a closed mouth
+the depth and normal constraints are satisfied as soon as the mouth socket's
+walls are pulled forward onto the scan's lower lip. They are blind to that
+tangential sliding, and the masked colour constraint charges nothing for
+socket pixels, so the mouth stays open in texture while the geometry
+matches. A short phase of the unmasked colour constraint alone, at the first
+level's resolution and lambda, first moves the lips onto the reference's
+lips; the paper's levels then run unchanged.
 """
 from __future__ import annotations
 
@@ -50,6 +60,9 @@ class Schedule:
             oscillating by about a step; short schedules take large steps and need the decay to settle.
         color_pool: per level, the box (px) colours are averaged over before the colour constraint
             compares them (1 = per pixel, the paper; None = 1 at every level).
+        warmup_iterations: iterations of the unmasked colour constraint alone before the first level,
+            at its resolution and lambda (0 = none, the paper; module docstring). Only runs when the
+            colour constraint is on.
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -58,6 +71,7 @@ class Schedule:
     lr_fraction: float = 0.1
     lr_decay: float = 1.0
     color_pool: tuple[int, ...] | None = None
+    warmup_iterations: int = 0
 
     def __post_init__(self) -> None:
         if len(self.lambdas) != len(self.iterations) or not self.lambdas:
@@ -65,6 +79,8 @@ class Schedule:
         if self.color_pool is not None and (len(self.color_pool) != len(self.lambdas)
                                             or any(int(p) < 1 for p in self.color_pool)):
             raise ValueError(f"color_pool needs one entry >= 1 per level, got {self.color_pool}")
+        if int(self.warmup_iterations) < 0:
+            raise ValueError(f"warmup_iterations must be >= 0, got {self.warmup_iterations}")
         if not 0.0 < self.lr_decay <= 1.0:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
 
@@ -91,6 +107,10 @@ def mean_edge_length(mesh: TexturedMesh) -> float:
     return float(mesh.edge_lengths().mean())
 
 
+#: The warm-up's constraints: colour alone, the mouth socket not masked (module docstring).
+WARMUP_SWITCHES = Switches(color=True, depth=False, normal=False, mask=False)
+
+
 def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches, schedule: Schedule, *,
              texture: torch.Tensor, mask_texture: torch.Tensor, render=None, cull_backfaces: bool = True,
              progress: Callable[[str], None] = print, progress_every: int = 50) -> tuple[TexturedMesh, RegistrationLog]:
@@ -102,59 +122,83 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         switches: which constraints (and the mouth mask) to use.
         texture: (T, T, 3) albedo; mask_texture: (T', T', 1) mouth mask (1 = use, 0 = mouth interior).
     Returns:
-        The registered mesh (last level's topology, same UV parametrisation) and its log.
+        The registered mesh (last level's topology, same UV parametrisation) and its log: one entry
+        per level, preceded by the warm-up's (``"stage": "warmup"``) when there is one.
     Raises:
         RegistrationDiverged: a loss or the vertices became NaN/inf (names level and iteration).
     """
-    rotation = switches.rotation()
+    switches.rotation()  # fails early when every constraint is off
     log = RegistrationLog()
+    common = dict(targets=targets, texture=texture, mask_texture=mask_texture, render=render,
+                  cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
+    if schedule.warmup_iterations and switches.color:
+        mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
+                                     schedule.lr_fraction * mean_edge_length(mesh), WARMUP_SWITCHES, schedule, 1,
+                                     **common)
+        log.levels.append({"stage": "warmup", **entry})
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
         start = time.perf_counter()
         if level > 0:
             mesh = refine_by_factor(mesh, schedule.refine_factor)
-        lr = schedule.lr_fraction * mean_edge_length(mesh)
-        param = LargeStepsParametrization(mesh.V, mesh.F, lam)
-        opt = param.optimizer(lr)
-        topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
-        uv = torch.tensor(mesh.UV, dtype=torch.float32)
-        losses: dict[str, list[float]] = {c: [] for c in rotation}
-        # where the time goes, s: the solve (I + lambda L)^-1 u in both directions, the render +
-        # loss forward, and the render's backward pass
-        timings = {"solve": 0.0, "render": 0.0, "backward": 0.0}
-        setup_s = time.perf_counter() - start
-        for it in range(n_iter):
-            constraint = rotation[it % len(rotation)]
-            for group in opt.param_groups:
-                group["lr"] = schedule.learning_rate(lr, it, n_iter)
-            t0 = time.perf_counter()
-            x = param.vertices()
-            t1 = time.perf_counter()
-            loss, _ = render_constraint(constraint, x, topo, targets, switches, uv, texture, mask_texture,
-                                        render=render, cull_backfaces=cull_backfaces,
-                                        color_pool=schedule.pool(level))
-            value = loss.detach().item()
-            if not math.isfinite(value):
-                raise RegistrationDiverged(f"level {level}, iteration {it}: the {constraint} loss is {value}")
-            t2 = time.perf_counter()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            t3 = time.perf_counter()
-            timings["solve"] += t1 - t0
-            timings["render"] += t2 - t1
-            timings["backward"] += t3 - t2  # includes the adjoint solve of the parametrisation
-            if not torch.isfinite(param.u).all():
-                raise RegistrationDiverged(f"level {level}, iteration {it}: vertices became NaN/inf after the {constraint} step")
-            losses[constraint].append(value)
-            if progress_every and (it + 1) % progress_every == 0:
-                rate = (it + 1) / (time.perf_counter() - start)
-                recent = ", ".join(f"{c} {np.mean(v[-progress_every // len(rotation):]):.4g}" for c, v in losses.items() if v)
-                progress(f"level {level + 1}/{len(schedule.lambdas)} iter {it + 1}/{n_iter}: {recent} ({rate:.1f} it/s)")
-        with torch.no_grad():
-            mesh = mesh.with_vertices(param.vertices().double().numpy())
-        log.levels.append({"level": level, "lambda": lam, "iterations": n_iter, "learning_rate_mm": lr,
-                           "color_pool": schedule.pool(level),
-                           "vertices": int(len(mesh.V)), "faces": int(len(mesh.F)),
-                           "seconds": round(time.perf_counter() - start, 3), "setup_seconds": round(setup_s, 3),
-                           "seconds_by_stage": {k: round(v, 3) for k, v in timings.items()}, "losses": losses})
+        refine_s = time.perf_counter() - start
+        mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter,
+                                     schedule.lr_fraction * mean_edge_length(mesh), switches, schedule,
+                                     schedule.pool(level), **common)
+        entry["seconds"] = round(entry["seconds"] + refine_s, 3)
+        entry["setup_seconds"] = round(entry["setup_seconds"] + refine_s, 3)
+        log.levels.append({"stage": "level", "level": level, **entry})
     return mesh, log
+
+
+def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, lr: float, switches: Switches,
+                   schedule: Schedule, pool: int, *, targets: ExpressionTargets, texture: torch.Tensor,
+                   mask_texture: torch.Tensor, render, cull_backfaces: bool, progress: Callable[[str], None],
+                   progress_every: int) -> tuple[TexturedMesh, dict]:
+    """``n_iter`` LargeSteps iterations on one fixed topology; returns the mesh and the level's log entry.
+
+    ``name`` labels progress lines and errors ("level 2/3", "warm-up"); ``lr`` is the first step (mm).
+    """
+    start = time.perf_counter()
+    rotation = switches.rotation()
+    param = LargeStepsParametrization(mesh.V, mesh.F, lam)
+    opt = param.optimizer(lr)
+    topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
+    uv = torch.tensor(mesh.UV, dtype=torch.float32)
+    losses: dict[str, list[float]] = {c: [] for c in rotation}
+    # where the time goes, s: the solve (I + lambda L)^-1 u in both directions, the render +
+    # loss forward, and the render's backward pass
+    timings = {"solve": 0.0, "render": 0.0, "backward": 0.0}
+    setup_s = time.perf_counter() - start
+    for it in range(n_iter):
+        constraint = rotation[it % len(rotation)]
+        for group in opt.param_groups:
+            group["lr"] = schedule.learning_rate(lr, it, n_iter)
+        t0 = time.perf_counter()
+        x = param.vertices()
+        t1 = time.perf_counter()
+        loss, _ = render_constraint(constraint, x, topo, targets, switches, uv, texture, mask_texture,
+                                    render=render, cull_backfaces=cull_backfaces, color_pool=pool)
+        value = loss.detach().item()
+        if not math.isfinite(value):
+            raise RegistrationDiverged(f"{name}, iteration {it}: the {constraint} loss is {value}")
+        t2 = time.perf_counter()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        t3 = time.perf_counter()
+        timings["solve"] += t1 - t0
+        timings["render"] += t2 - t1
+        timings["backward"] += t3 - t2  # includes the adjoint solve of the parametrisation
+        if not torch.isfinite(param.u).all():
+            raise RegistrationDiverged(f"{name}, iteration {it}: vertices became NaN/inf after the {constraint} step")
+        losses[constraint].append(value)
+        if progress_every and (it + 1) % progress_every == 0:
+            rate = (it + 1) / (time.perf_counter() - start)
+            recent = ", ".join(f"{c} {np.mean(v[-progress_every // len(rotation):]):.4g}" for c, v in losses.items() if v)
+            progress(f"{name} iter {it + 1}/{n_iter}: {recent} ({rate:.1f} it/s)")
+    with torch.no_grad():
+        mesh = mesh.with_vertices(param.vertices().double().numpy())
+    return mesh, {"lambda": lam, "iterations": n_iter, "learning_rate_mm": lr, "color_pool": pool,
+                  "vertices": int(len(mesh.V)), "faces": int(len(mesh.F)),
+                  "seconds": round(time.perf_counter() - start, 3), "setup_seconds": round(setup_s, 3),
+                  "seconds_by_stage": {k: round(v, 3) for k, v in timings.items()}, "losses": losses}

@@ -49,7 +49,7 @@ def test_nan_names_level_and_iteration():
     Vt, Ft, targets = ellipsoid_targets(size=32)
     targets.depth = targets.depth.clone()
     targets.depth[0, 16, 16, 0] = float("nan")
-    with pytest.raises(RegistrationDiverged, match=r"level 0, iteration \d+: the depth loss is nan"):
+    with pytest.raises(RegistrationDiverged, match=r"level 1/1, iteration \d+: the depth loss is nan"):
         optimise(start_mesh(), targets, Switches(color=False, normal=False), Schedule(lambdas=(20.0,), iterations=(5,)),
                  texture=torch.ones(4, 4, 3), mask_texture=torch.ones(4, 4, 1), progress_every=0)
 
@@ -63,3 +63,63 @@ def test_learning_rate_decays_geometrically_within_a_level():
     assert rates[0] == 2.0 and abs(rates[-1] - 0.02) < 1e-12
     with pytest.raises(ValueError, match="lr_decay"):
         Schedule(lambdas=(10.0,), iterations=(5,), lr_decay=1.5)
+
+
+def slid_texture_scene(size=48):
+    """A textured sphere whose reference images show its texture turned 5 degrees about +Y.
+
+    The surface is the same sphere, so depth and normals already agree: only the colour constraint
+    sees the tangential slide (what keeps a template's open mouth open in texture, multiscale.py).
+    """
+    from gpja.lighting import uniform_sh
+    from gpja.render import Topology, render_views
+    from tests.render.scenes import ring_cameras
+
+    V, F = sphere(subdivisions=3, radius=60.0)
+    uv = spherical_uv(V)
+    tex = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(0))
+    cams, sh = ring_cameras(2, size), torch.tensor(uniform_sh(), dtype=torch.float32)
+    a = np.radians(5.0)
+    turn = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    topo = Topology(torch.from_numpy(F), torch.from_numpy(F))
+    uv_t = torch.tensor(uv, dtype=torch.float32)
+    ref = render_views(torch.tensor(V @ turn.T, dtype=torch.float32), topo, cams, ("color", "depth", "normal"),
+                       uv=uv_t, texture=tex, sh=sh)
+    targets = ExpressionTargets(cams, ref.dense("color").detach(), ref.dense("depth").detach(),
+                                ref.dense("normal").detach(), ref.dense("coverage").detach(), sh)
+
+    def colour_error(mesh):
+        out = render_views(torch.tensor(mesh.V, dtype=torch.float32), topo, cams, ("color",), uv=uv_t,
+                           texture=tex, sh=sh)
+        return float((out.dense("color") - targets.images).abs().mean())
+
+    return TexturedMesh(V, F, uv, F), tex, targets, colour_error
+
+
+def test_warmup_undoes_a_slide_that_the_masked_constraints_cannot_see():
+    mesh, tex, targets, colour_error = slid_texture_scene()
+    socket_everywhere = torch.zeros(4, 4, 1)  # the masked colour constraint counts no pixel
+    kwargs = dict(texture=tex, mask_texture=socket_everywhere, progress_every=0)
+    plain = Schedule(lambdas=(10.0,), iterations=(30,), lr_fraction=0.1, lr_decay=0.3)
+    warmed = Schedule(lambdas=(10.0,), iterations=(30,), lr_fraction=0.1, lr_decay=0.3, warmup_iterations=60)
+    start = colour_error(mesh)
+    without, _ = optimise(mesh, targets, Switches(), plain, **kwargs)
+    with_warmup, log = optimise(mesh, targets, Switches(), warmed, **kwargs)
+    assert colour_error(without) > 0.8 * start  # depth, normal and the masked colour: blind to the slide
+    warmup_losses = log.levels[0]["losses"]
+    assert set(warmup_losses) == {"color"} and len(warmup_losses["color"]) == 60
+    assert warmup_losses["color"][-1] < warmup_losses["color"][0] / 10  # the slide is undone...
+    # ...and the level after it keeps most of that (uniform Adam steps on the blind constraints jitter it)
+    assert colour_error(with_warmup) < 0.7 * start
+    assert [lv["stage"] for lv in log.levels] == ["warmup", "level"]
+    assert log.levels[0]["vertices"] == len(mesh.V)  # at the first level's resolution, no refinement
+
+
+def test_no_warmup_without_the_colour_constraint():
+    mesh, tex, targets, _ = slid_texture_scene(size=32)
+    schedule = Schedule(lambdas=(10.0,), iterations=(3,), warmup_iterations=5)
+    _, log = optimise(mesh, targets, Switches(color=False), schedule, texture=tex,
+                      mask_texture=torch.ones(4, 4, 1), progress_every=0)
+    assert [lv["stage"] for lv in log.levels] == ["level"]
+    with pytest.raises(ValueError, match="warmup_iterations"):
+        Schedule(lambdas=(10.0,), iterations=(3,), warmup_iterations=-1)
