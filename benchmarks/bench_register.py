@@ -45,6 +45,15 @@ def scan_to_mesh_mm(scan_V: np.ndarray, V: np.ndarray, F: np.ndarray) -> dict:
             "p95": round(float(np.percentile(d, 95)), 4)}
 
 
+def shared_texture_psnr(mesh, texture: np.ndarray, targets) -> float:
+    """Mean over views of the PSNR (dB) of the mesh rendered with the template texture, over the head mask."""
+    from gpja.metrics.photometric import head_mask, masked_psnr, render_with_texture
+
+    renders = render_with_texture(mesh, texture, targets.cameras, targets.sh)
+    masks = head_mask(targets.coverage.numpy())
+    return float(np.mean([masked_psnr(r, i, m) for r, i, m in zip(renders, targets.images.numpy(), masks) if m.any()]))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", choices=["default", "paper"], default="default")
@@ -88,6 +97,7 @@ def main() -> None:
         "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()},
         "seconds": round(seconds, 2), "levels": levels,
         "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F),
+        "psnr_db": round(shared_texture_psnr(mesh, template.texture, targets), 2),
     }, indent=1))
 
 
