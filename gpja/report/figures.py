@@ -572,7 +572,8 @@ def loss_curves(log: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], li
 
 
 def plot_convergence(files: RunFiles, subject: str, method: str, expressions: Sequence[str], output: str | Path):
-    """One panel per constraint: loss against iteration for every expression; dashed lines at refinements."""
+    """One panel per constraint: loss against iteration for every expression; dashed lines where a stage ends
+    (the warm-up, when the log has one, then each refinement)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -591,7 +592,7 @@ def plot_convergence(files: RunFiles, subject: str, method: str, expressions: Se
         for s in next(iter(curves.values()))[1][1:]:
             ax.axvline(s, color="grey", ls="--", lw=0.8)
         ax.set_yscale("log")
-        ax.set_xlabel("iteration (dashed: refinement)")
+        ax.set_xlabel("iteration (dashed: end of warm-up or level)")
         ax.set_title(CONSTRAINT_LABELS.get(name, name), fontsize=10)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("L1 loss (per pixel)")
