@@ -133,33 +133,33 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
     if schedule.warmup_iterations and switches.color:
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
-                                     schedule.lr_fraction * mean_edge_length(mesh), WARMUP_SWITCHES, schedule, 1,
-                                     **common)
+                                     WARMUP_SWITCHES, schedule, 1, **common)
         log.levels.append({"stage": "warmup", **entry})
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
         start = time.perf_counter()
         if level > 0:
             mesh = refine_by_factor(mesh, schedule.refine_factor)
         refine_s = time.perf_counter() - start
-        mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter,
-                                     schedule.lr_fraction * mean_edge_length(mesh), switches, schedule,
-                                     schedule.pool(level), **common)
+        mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter, switches,
+                                     schedule, schedule.pool(level), **common)
         entry["seconds"] = round(entry["seconds"] + refine_s, 3)
         entry["setup_seconds"] = round(entry["setup_seconds"] + refine_s, 3)
         log.levels.append({"stage": "level", "level": level, **entry})
     return mesh, log
 
 
-def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, lr: float, switches: Switches,
+def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switches: Switches,
                    schedule: Schedule, pool: int, *, targets: ExpressionTargets, texture: torch.Tensor,
                    mask_texture: torch.Tensor, render, cull_backfaces: bool, progress: Callable[[str], None],
                    progress_every: int) -> tuple[TexturedMesh, dict]:
     """``n_iter`` LargeSteps iterations on one fixed topology; returns the mesh and the level's log entry.
 
-    ``name`` labels progress lines and errors ("level 2/3", "warm-up"); ``lr`` is the first step (mm).
+    ``name`` labels progress lines and errors ("level 2/3", "warm-up"). The first step is
+    ``schedule.lr_fraction`` x this mesh's mean edge length (mm), decaying as the schedule says.
     """
     start = time.perf_counter()
     rotation = switches.rotation()
+    lr = schedule.lr_fraction * mean_edge_length(mesh)
     param = LargeStepsParametrization(mesh.V, mesh.F, lam)
     opt = param.optimizer(lr)
     topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
