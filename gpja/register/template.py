@@ -29,7 +29,7 @@ from gpja.register.bust import Bust, make_bust, place_bust
 from gpja.register.hra import ExpressionTargets, Switches
 from gpja.register.multiscale import Schedule, optimise
 from gpja.render import interpolate_attribute, rasterize_fragments, sample_texture
-from gpja.render.passes import normalize_rows, vertex_normals
+from gpja.render.normals import normalize_rows, vertex_normals
 from gpja.render.project import project_to_screen
 
 

@@ -16,7 +16,8 @@ from gpja.render.backend import BACKENDS, renderer, resolve_backend
 from gpja.render.silhouettes import antialias, face_adjacency, find_edge_pairs
 from gpja.render.fragments import Fragments, rasterize_fragments
 from gpja.render.interpolate import interpolate_attribute, interpolate_rows, scatter_to_image
-from gpja.render.passes import PASSES, RenderOutput, Topology, image_l1, render_scan_targets, render_views, vertex_normals
+from gpja.render.normals import vertex_normals
+from gpja.render.passes import PASSES, RenderOutput, Topology, image_l1, render_scan_targets, render_views
 from gpja.render.project import project_to_screen
 from gpja.render.rasterize import rasterize
 from gpja.render.texture import sample_texture

@@ -13,7 +13,7 @@ import numba as nb
 import numpy as np
 import torch
 
-from gpja.render.rasterize import BACKGROUND, rasterize
+from gpja.render.rasterize import BACKGROUND, rasterize_with_facing
 
 
 @dataclass
@@ -28,6 +28,7 @@ class Fragments:
         bary: (P, 3) perspective-correct barycentrics, differentiable.
         z: (P,) camera depth in mm, differentiable.
         corners: (P, 3) int64 vertex indices of each pixel's triangle (``faces[face]``).
+        facing: (B, m) bool numpy, face f looks towards camera b (for silhouettes).
     """
 
     tri_id: np.ndarray
@@ -37,6 +38,7 @@ class Fragments:
     bary: torch.Tensor
     z: torch.Tensor
     corners: torch.Tensor
+    facing: np.ndarray
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -54,20 +56,60 @@ def rasterize_fragments(screen: torch.Tensor, faces: torch.Tensor, height: int, 
         cull_backfaces: drop triangles facing away from each camera.
     """
     n_views, n_vertices, _ = screen.shape
-    tri_id, depth = rasterize(screen.detach().cpu().numpy(), faces.detach().cpu().numpy(), height, width, cull_backfaces)
-    flat = np.flatnonzero(tri_id.ravel() != BACKGROUND)
-    device = screen.device
-    pixel = torch.from_numpy(flat).to(device)
-    face = torch.from_numpy(tri_id.ravel()[flat].astype(np.int64)).to(device)
-    view = pixel // (height * width)
-    rem = pixel % (height * width)
-    py = (rem // width).to(screen.dtype)
-    px = (rem % width).to(screen.dtype)
-    vertex_corners = faces.to(device)[face]
-    corners = vertex_corners + (view * n_vertices)[:, None]  # (P, 3) rows of screen.reshape(-1, 3)
-    view_starts = torch.from_numpy(np.searchsorted(flat, np.arange(n_views + 1) * height * width).astype(np.int64))
-    bary, z = perspective_barycentrics(screen.reshape(-1, 3), corners, px, py, view_starts)
-    return Fragments(tri_id, depth, pixel, face, bary, z, vertex_corners)
+    screen_np = screen.detach().numpy()  # CPU only: the barycentric op below is a numba kernel
+    fcs = np.ascontiguousarray(faces.detach().numpy(), dtype=np.int64)
+    tri_id, depth64, facing = rasterize_with_facing(screen_np, fcs, height, width, cull_backfaces)
+    counts = np.empty(n_views, dtype=np.int64)
+    depth = np.empty(tri_id.shape, dtype=np.float32)
+    _count_covered(tri_id, depth64, counts, depth)
+    view_starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    n = int(view_starts[-1])
+    pixel = np.empty(n, dtype=np.int64)
+    face = np.empty(n, dtype=np.int64)
+    vertex_corners = np.empty((n, 3), dtype=np.int64)
+    corners = np.empty((n, 3), dtype=np.int64)
+    px = np.empty(n, dtype=screen_np.dtype)
+    py = np.empty_like(px)
+    _list_covered(tri_id, fcs, n_vertices, view_starts, pixel, face, vertex_corners, corners, px, py)
+    bary, z = perspective_barycentrics(screen.reshape(-1, 3), torch.from_numpy(corners), torch.from_numpy(px),
+                                       torch.from_numpy(py), torch.from_numpy(view_starts))
+    return Fragments(tri_id, depth, torch.from_numpy(pixel), torch.from_numpy(face), bary, z,
+                     torch.from_numpy(vertex_corners), facing)
+
+
+@nb.njit(cache=True, parallel=True)
+def _count_covered(tri_id, depth64, counts, depth):
+    """Covered pixels per view, and the depth buffer narrowed to float32."""
+    for b in nb.prange(tri_id.shape[0]):
+        n = 0
+        for y in range(tri_id.shape[1]):
+            for x in range(tri_id.shape[2]):
+                depth[b, y, x] = np.float32(depth64[b, y, x])
+                if tri_id[b, y, x] != BACKGROUND:
+                    n += 1
+        counts[b] = n
+
+
+@nb.njit(cache=True, parallel=True)
+def _list_covered(tri_id, faces, n_vertices, view_starts, pixel, face, vertex_corners, corners, px, py):
+    """The covered pixels in flat-index order: index, face, its corners and the pixel centre."""
+    n_views, height, width = tri_id.shape
+    for b in nb.prange(n_views):
+        k = view_starts[b]
+        for y in range(height):
+            for x in range(width):
+                f = tri_id[b, y, x]
+                if f == BACKGROUND:
+                    continue
+                pixel[k] = (b * height + y) * width + x
+                face[k] = f
+                for c in range(3):
+                    vertex_corners[k, c] = faces[f, c]
+                    # rows of screen.reshape(-1, 3)
+                    corners[k, c] = faces[f, c] + b * n_vertices
+                px[k] = x
+                py[k] = y
+                k += 1
 
 
 @nb.njit(cache=True, parallel=True)

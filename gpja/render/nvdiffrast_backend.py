@@ -14,7 +14,8 @@ import torch
 
 from gpja.camera import Camera
 from gpja.lighting import shade_lambertian
-from gpja.render.passes import CHANNELS, PASSES, RenderOutput, Topology, check_render_input, normalize_rows, vertex_normals
+from gpja.render.normals import normalize_rows, vertex_normals
+from gpja.render.passes import CHANNELS, PASSES, RenderOutput, Topology, check_render_input
 from gpja.render.project import project_to_screen
 
 #: Clip-space depth range (mm); heads sit 300-1500 mm from the rig's cameras.

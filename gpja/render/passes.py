@@ -17,6 +17,7 @@ from gpja.lighting import shade_lambertian
 from gpja.render.silhouettes import blend_across_edges, edge_crossings, face_adjacency, find_edge_pairs
 from gpja.render.fragments import Fragments, rasterize_fragments
 from gpja.render.interpolate import interpolate_attribute, interpolate_rows
+from gpja.render.normals import normalize_rows, vertex_incidence, vertex_normals
 from gpja.render.project import project_to_screen
 from gpja.render.texture import sample_texture
 
@@ -37,6 +38,7 @@ class Topology:
     faces: torch.Tensor
     uv_faces: torch.Tensor | None = None
     adjacency: np.ndarray = field(default=None)  # type: ignore[assignment]
+    _incidence: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.faces = torch.as_tensor(np.asarray(self.faces), dtype=torch.int64)
@@ -45,30 +47,11 @@ class Topology:
         if self.adjacency is None:
             self.adjacency = face_adjacency(self.faces.numpy())
 
-
-def vertex_normals(V: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    """Area-weighted unit vertex normals.
-
-    Args:
-        V: (n, 3) float positions, mm. faces: (m, 3) int64, counter-clockwise outward.
-    Returns:
-        (n, 3) unit normals (world frame), differentiable in ``V``.
-    """
-    # index_select, not V[faces]: the backward of advanced indexing (index_put_ with accumulate) is
-    # not deterministic on the CPU, and registration must give the same numbers on every run
-    tri = V.index_select(0, faces.reshape(-1)).reshape(-1, 3, 3)
-    face_n = torch.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=1)
-    acc = torch.zeros_like(V).index_add_(0, faces.reshape(-1), face_n.repeat_interleave(3, dim=0))
-    return normalize_rows(acc)
-
-
-def normalize_rows(x: torch.Tensor) -> torch.Tensor:
-    """Rows of ``x`` (k, 3) scaled to unit length (zero rows stay zero).
-
-    rsqrt of the squared norm: cheaper than ``torch.linalg.vector_norm`` on CPU,
-    forward and backward.
-    """
-    return x * torch.rsqrt((x * x).sum(dim=1, keepdim=True).clamp_min(1e-24))
+    def incidence(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+        """``vertex_incidence`` of the faces for ``n_vertices`` vertices, built once."""
+        if n_vertices not in self._incidence:
+            self._incidence[n_vertices] = vertex_incidence(self.faces.numpy(), n_vertices)
+        return self._incidence[n_vertices]
 
 
 def check_render_input(V: torch.Tensor, faces: torch.Tensor, cameras: Sequence[Camera]) -> None:
@@ -178,7 +161,8 @@ def render_views(
     backgrounds: dict[str, torch.Tensor] = {}
     normals = None
     if "color" in passes or "normal" in passes:
-        normals = normalize_rows(interpolate_rows(vertex_normals(V, faces), frags.bary, frags.corners))
+        normals = normalize_rows(interpolate_rows(vertex_normals(V, faces, topo.incidence(len(V))), frags.bary,
+                                                  frags.corners))
     uv_frag = interpolate_attribute(uv, topo.uv_faces, frags) if ("color" in passes or "mask" in passes) else None
     for name in passes:
         if name == "color":

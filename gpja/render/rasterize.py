@@ -33,7 +33,9 @@ def _is_top_left(ax, ay, bx, by):
 
 
 @nb.njit(cache=True, parallel=True)
-def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth):
+def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth, facing):
+    # screen may be float32 or float64: every read is widened to float64, so the
+    # result does not depend on the storage dtype (and no float64 copy is made)
     n_views, n_vertices = screen.shape[0], screen.shape[1]
     scale = float(1 << SUBPIXEL_BITS)
     # snap every vertex once per view (each is shared by ~6 triangles); coordinates
@@ -42,12 +44,18 @@ def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth):
     limit = float(4 * max(height, width) + 64)
     for b in nb.prange(n_views):
         for i in range(n_vertices):
-            fixed[b, i, 0] = np.int64(np.round(min(max(screen[b, i, 0], -limit), limit) * scale))
-            fixed[b, i, 1] = np.int64(np.round(min(max(screen[b, i, 1], -limit), limit) * scale))
+            fixed[b, i, 0] = np.int64(np.round(min(max(np.float64(screen[b, i, 0]), -limit), limit) * scale))
+            fixed[b, i, 1] = np.int64(np.round(min(max(np.float64(screen[b, i, 1]), -limit), limit) * scale))
     for b in nb.prange(n_views):
         for f in range(faces.shape[0]):
             i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-            z0, z1, z2 = screen[b, i0, 2], screen[b, i1, 2], screen[b, i2, 2]
+            # orientation in float (the antialiasing pass's silhouette test), computed here
+            # because this loop already has the face's vertices at hand
+            fx0, fy0 = np.float64(screen[b, i0, 0]), np.float64(screen[b, i0, 1])
+            fx1, fy1 = np.float64(screen[b, i1, 0]), np.float64(screen[b, i1, 1])
+            fx2, fy2 = np.float64(screen[b, i2, 0]), np.float64(screen[b, i2, 1])
+            facing[b, f] = (fx1 - fx0) * (fy2 - fy0) - (fy1 - fy0) * (fx2 - fx0) < 0.0
+            z0, z1, z2 = np.float64(screen[b, i0, 2]), np.float64(screen[b, i1, 2]), np.float64(screen[b, i2, 2])
             if z0 < NEAR_MM or z1 < NEAR_MM or z2 < NEAR_MM:
                 continue
             x0, y0 = fixed[b, i0, 0], fixed[b, i0, 1]
@@ -93,6 +101,32 @@ def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth):
                         tri_id[b, py, px] = f
 
 
+def rasterize_with_facing(screen: np.ndarray, faces: np.ndarray, height: int, width: int,
+                          cull_backfaces: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`rasterize`, plus which faces look towards each camera; depth stays float64.
+
+    Returns:
+        tri_id: (B, H, W) int32, ``BACKGROUND`` where empty.
+        depth: (B, H, W) float64 camera depth in mm, ``inf`` where empty.
+        facing: (B, m) bool, face f is front-facing in view b (negative signed
+            area in y-down pixels, from the float coordinates).
+    """
+    if height <= 0 or width <= 0:
+        raise ValueError(f"image size must be positive, got {width}x{height}")
+    if screen.dtype not in (np.float32, np.float64):
+        screen = screen.astype(np.float64)
+    screen = np.ascontiguousarray(screen)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    n_views = screen.shape[0]
+    tri_id = np.full((n_views, height, width), BACKGROUND, dtype=np.int32)
+    depth = np.full((n_views, height, width), np.inf, dtype=np.float64)
+    facing = np.empty((n_views, len(faces)), dtype=np.bool_)
+    # In y-down pixel coordinates a counter-clockwise (outward-facing) triangle
+    # seen from the front has negative signed area.
+    _rasterize_kernel(screen, faces, height, width, -1 if cull_backfaces else 0, tri_id, depth, facing)
+    return tri_id, depth, facing
+
+
 def rasterize(screen: np.ndarray, faces: np.ndarray, height: int, width: int, cull_backfaces: bool = False
               ) -> tuple[np.ndarray, np.ndarray]:
     """Triangle id and depth of the nearest surface at every pixel of every view.
@@ -107,14 +141,5 @@ def rasterize(screen: np.ndarray, faces: np.ndarray, height: int, width: int, cu
         tri_id: (B, H, W) int32 face index, ``BACKGROUND`` (-1) where empty.
         depth: (B, H, W) float32 camera depth in mm, ``inf`` where empty.
     """
-    if height <= 0 or width <= 0:
-        raise ValueError(f"image size must be positive, got {width}x{height}")
-    screen = np.ascontiguousarray(screen, dtype=np.float64)
-    faces = np.ascontiguousarray(faces, dtype=np.int64)
-    n_views = screen.shape[0]
-    tri_id = np.full((n_views, height, width), BACKGROUND, dtype=np.int32)
-    depth = np.full((n_views, height, width), np.inf, dtype=np.float64)
-    # In y-down pixel coordinates a counter-clockwise (outward-facing) triangle
-    # seen from the front has negative signed area.
-    _rasterize_kernel(screen, faces, height, width, -1 if cull_backfaces else 0, tri_id, depth)
+    tri_id, depth, _ = rasterize_with_facing(screen, faces, height, width, cull_backfaces)
     return tri_id, depth.astype(np.float32)

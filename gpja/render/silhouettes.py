@@ -35,9 +35,11 @@ def face_adjacency(faces: np.ndarray) -> np.ndarray:
     if m == 0:
         return np.zeros((0, 3), dtype=np.int64)
     half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    key = np.sort(half, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
+    ends = np.sort(half, axis=1)
+    # one integer per undirected edge, ordered as the (low, high) pairs are: a 1-D unique
+    # is several times faster than np.unique(axis=0) on rows
+    key = ends[:, 0] * (int(faces.max()) + 1) + ends[:, 1]
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     order = np.argsort(inverse, kind="stable")
     adj = np.full(3 * m, -1, dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -49,17 +51,6 @@ def face_adjacency(faces: np.ndarray) -> np.ndarray:
     return adj.reshape(m, 3)
 
 
-@nb.njit(cache=True, parallel=True)
-def _facing_kernel(screen, faces, out):
-    """out[b, f]: face f is front-facing in view b (negative area in y-down pixels)."""
-    for b in nb.prange(screen.shape[0]):
-        for f in range(faces.shape[0]):
-            x0, y0 = screen[b, faces[f, 0], 0], screen[b, faces[f, 0], 1]
-            x1, y1 = screen[b, faces[f, 1], 0], screen[b, faces[f, 1], 1]
-            x2, y2 = screen[b, faces[f, 2], 0], screen[b, faces[f, 2], 1]
-            out[b, f] = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0) < 0.0
-
-
 #: How many faces the search may cross along a pixel segment before giving up.
 MAX_WALK = 16
 
@@ -67,8 +58,8 @@ MAX_WALK = 16
 @nb.njit(cache=True, inline="always")
 def _segment_crossing(screen, b, va, vb, ox, oy, qx, qy):
     """Parameter t of the segment o->q where it crosses edge (va, vb); -1 if it misses."""
-    xa, ya = screen[b, va, 0], screen[b, va, 1]
-    xb, yb = screen[b, vb, 0], screen[b, vb, 1]
+    xa, ya = np.float64(screen[b, va, 0]), np.float64(screen[b, va, 1])
+    xb, yb = np.float64(screen[b, vb, 0]), np.float64(screen[b, vb, 1])
     if oy == qy:  # horizontal pair: the edge must span the row y = oy
         if (ya - oy) * (yb - oy) > 0.0 or ya == yb:
             return -1.0
@@ -161,8 +152,8 @@ def _edge_pairs_kernel(tri_id, depth, screen, facing, faces, adj, counts, capaci
                     continue  # interior edge, or a silhouette edge already visited from g
                 va = faces[f, k]
                 vb = faces[f, (k + 1) % 3]
-                xa, ya = screen[b, va, 0], screen[b, va, 1]
-                xb, yb = screen[b, vb, 0], screen[b, vb, 1]
+                xa, ya = np.float64(screen[b, va, 0]), np.float64(screen[b, va, 1])
+                xb, yb = np.float64(screen[b, vb, 0]), np.float64(screen[b, vb, 1])
                 if screen[b, va, 2] < 1.0 or screen[b, vb, 2] < 1.0:
                     continue
                 # horizontal pairs: rows y with the edge crossing between x and x + 1
@@ -209,13 +200,16 @@ class EdgePairs:
 
 
 def find_edge_pairs(frags: Fragments, screen: torch.Tensor, faces: torch.Tensor, adjacency: np.ndarray) -> EdgePairs:
-    """Find the pixel pairs the antialiasing pass blends (no gradient)."""
-    scr = np.ascontiguousarray(screen.detach().cpu().numpy(), dtype=np.float64)
-    fcs = np.ascontiguousarray(faces.detach().cpu().numpy(), dtype=np.int64)
+    """Find the pixel pairs the antialiasing pass blends (no gradient).
+
+    Uses the rasteriser's per-view face orientation (``frags.facing``); ``screen``
+    may be float32 or float64 (read as float64 by the kernels, never copied).
+    """
+    scr = np.ascontiguousarray(screen.detach().numpy())
+    fcs = np.ascontiguousarray(faces.detach().numpy(), dtype=np.int64)
+    facing = frags.facing
     n_views = scr.shape[0]
     counts = np.zeros(n_views, dtype=np.int64)
-    facing = np.empty((n_views, len(fcs)), dtype=np.bool_)
-    _facing_kernel(scr, fcs, facing)
     height, width = frags.tri_id.shape[1:]
     capacity = 8 * (height + width)  # a few outline lengths per view; retried if exceeded
     while True:

@@ -42,7 +42,7 @@ def test_edge_pairs_match_a_brute_force_scan_of_all_pixel_pairs():
     import trimesh
 
     from gpja.render import project_to_screen, rasterize_fragments
-    from gpja.render.silhouettes import _facing_kernel, _find_edge, find_edge_pairs
+    from gpja.render.silhouettes import _find_edge, find_edge_pairs
     from tests.render.scenes import ring_cameras
 
     big = trimesh.creation.icosphere(subdivisions=4, radius=60)
@@ -57,8 +57,11 @@ def test_edge_pairs_match_a_brute_force_scan_of_all_pixel_pairs():
     pairs = find_edge_pairs(frags, screen, torch.tensor(F), adj)
     found = set(zip(pairs.occluder.tolist(), pairs.other.tolist()))
     S = screen.numpy()
-    facing = np.empty((len(cams), len(F)), np.bool_)
-    _facing_kernel(S, F, facing)
+    # front-facing: negative signed area in y-down pixels (the rasteriser's by-product, checked here)
+    tri = S[:, F]  # (B, m, 3 corners, 3)
+    d1, d2 = tri[:, :, 1, :2] - tri[:, :, 0, :2], tri[:, :, 2, :2] - tri[:, :, 0, :2]
+    facing = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0] < 0.0
+    np.testing.assert_array_equal(frags.facing, facing)
     expected = set()
     for b in range(len(cams)):
         T, D = frags.tri_id[b], frags.depth[b]
