@@ -51,3 +51,16 @@ def test_regression_values():
     sh[1:4] = [[0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.3]]
     out = irradiance_over_pi(np.array([[0.0, 0.0, 1.0]]), sh)
     np.testing.assert_allclose(out, [[0.8, 0.8 + 2 / 3 * 0.2 * math.sqrt(3 / (4 * math.pi)), 0.8]], atol=EXACT_F64)
+
+
+def test_fixed_lighting_op_matches_numpy_and_gradcheck():
+    # CPU torch normals under lighting without gradient take the fused numba op
+    n = fibonacci_sphere(40)
+    sh = np.random.default_rng(2).normal(size=(9, 3))
+    nt = torch.tensor(n, dtype=torch.float64, requires_grad=True)
+    out = irradiance_over_pi(nt, torch.tensor(sh))
+    np.testing.assert_allclose(out.detach().numpy(), irradiance_over_pi(n, sh), atol=EXACT_F64)
+    st = torch.tensor(sh)
+    assert torch.autograd.gradcheck(lambda v: irradiance_over_pi(v, st), (nt[:8].detach().requires_grad_(True),))
+    # float32 in, float32 out
+    assert irradiance_over_pi(nt.detach().float(), st.float()).dtype == torch.float32

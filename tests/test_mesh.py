@@ -107,3 +107,17 @@ def test_regression_obj_text(tmp_path):
     lines = (tmp_path / "t.obj").read_text().splitlines()
     assert lines[1:] == ["v 0.10000000000000001 0.20000000000000001 0.29999999999999999", "v 1 0 0", "v 0 1 0",
                          "vt 0 0", "vt 1 0", "vt 0 1", "f 1/1 2/2 3/3"]
+
+
+def test_unique_edges_of_two_triangles_and_against_row_unique():
+    from gpja.mesh import unique_edges
+
+    edges, face_edge = unique_edges(np.array([[0, 1, 2], [2, 1, 3]]))
+    np.testing.assert_array_equal(edges, [[0, 1], [0, 2], [1, 2], [1, 3], [2, 3]])
+    np.testing.assert_array_equal(face_edge, [[0, 2, 1], [2, 3, 4]])
+    F = np.random.default_rng(0).integers(0, 300, size=(500, 3))
+    edges, face_edge = unique_edges(F)
+    half = np.sort(np.stack([F, np.roll(F, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    ref, inverse = np.unique(half, axis=0, return_inverse=True)
+    np.testing.assert_array_equal(edges, ref)
+    np.testing.assert_array_equal(face_edge.ravel(), inverse.ravel())

@@ -80,7 +80,7 @@ import scipy.sparse as sp
 
 from gpja.errors import InputError
 from gpja.io import fill_path_pattern
-from gpja.mesh import TexturedMesh
+from gpja.mesh import TexturedMesh, unique_edges
 
 #: iBUG-68 points that an expression barely moves (nose bridge, nostrils, eye
 #: corners): the rigid pre-alignment uses only these when 68 landmarks are given,
@@ -193,12 +193,6 @@ def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """(n,) float64 barycentric vertex areas (a third of each adjacent face), units of V squared."""
     fa = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
     return np.bincount(F.ravel(), weights=np.repeat(fa / 3.0, 3), minlength=len(V))
-
-
-def unique_edges(F: np.ndarray) -> np.ndarray:
-    """(e, 2) int64 undirected edges of faces ``F (m, 3)``, each once, smaller index first."""
-    e = np.sort(F[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return np.unique(e, axis=0)
 
 
 def boundary_flags(F: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
@@ -366,7 +360,7 @@ def rigid_align(V: np.ndarray, F: np.ndarray, target: ClosestPoints, landmarks: 
 
 def stiffness_matrix(F: np.ndarray, n: int, gamma: float) -> sp.csr_matrix:
     """(4n, 4n) ``(M^T M) (x) G^2``: sum over edges of ``|G (X_i - X_j)|^2`` as a quadratic form."""
-    E = unique_edges(F)
+    E, _ = unique_edges(F)
     e = len(E)
     M = sp.csr_matrix((np.r_[np.ones(e), -np.ones(e)], (np.r_[np.arange(e), np.arange(e)], np.r_[E[:, 0], E[:, 1]])),
                       shape=(e, n))

@@ -59,7 +59,7 @@ from gpja.data.facescape import check_head_units, read_rt_scale, read_scan
 from gpja.data.synthetic.capture import build_scene, vertex_normals
 from gpja.errors import InputError
 from gpja.io import write_npz
-from gpja.mesh import TexturedMesh, read_obj
+from gpja.mesh import TexturedMesh, read_obj, unique_edges
 from gpja.register.pipeline import check_units
 
 #: Points sampled on the registered mesh for the mesh -> scan direction: at
@@ -121,18 +121,17 @@ class ClosestPoints:
     on_boundary: np.ndarray
 
 
-def open_edges(F: np.ndarray, n_vertices: int) -> np.ndarray:
+def open_edges(F: np.ndarray) -> np.ndarray:
     """(m, 3) bool: edge k of each face (corners k, k+1) belongs to no other face.
 
     Edges shared by three or more faces (non-manifold) count as closed.
     Args:
-        F: (m, 3) int64 faces; n_vertices: number of vertices they index.
+        F: (m, 3) int64 faces.
     """
-    a, b = F, np.roll(F, -1, axis=1)
-    # one int64 key per undirected edge: a 1-D unique is far faster than unique(axis=0)
-    key = (np.minimum(a, b) * np.int64(n_vertices) + np.maximum(a, b)).ravel()
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    return (counts[inverse.ravel()] == 1).reshape(-1, 3)
+    if len(F) == 0:
+        return np.zeros((0, 3), dtype=bool)
+    _, face_edge = unique_edges(F)
+    return np.bincount(face_edge.ravel())[face_edge] == 1
 
 
 def coincident_vertex_ids(V: np.ndarray) -> np.ndarray:
@@ -161,7 +160,7 @@ def prepare_surface(V: np.ndarray, F: np.ndarray, origin: np.ndarray, find_bound
     if find_boundary:
         ids = coincident_vertex_ids(V)
         F_welded = ids[F]
-        edge_open = open_edges(F_welded, int(ids.max()) + 1)
+        edge_open = open_edges(F_welded)
         on_rim = np.zeros(int(ids.max()) + 1, dtype=bool)
         on_rim[F_welded[edge_open]] = True
         on_rim[np.roll(F_welded, -1, axis=1)[edge_open]] = True

@@ -17,21 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gpja.mesh import TexturedMesh
-
-
-def unique_edges(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Undirected edges of a triangle index array.
-
-    Args:
-        F: (m, 3) int64 corner indices.
-    Returns:
-        edges: (e, 2) int64 sorted vertex pairs.
-        face_edge: (m, 3) int64 edge id of each face's edge k = (corner k, corner k+1).
-    """
-    half = np.stack([F, np.roll(F, -1, axis=1)], axis=2).reshape(-1, 2)
-    edges, inverse = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True)
-    return edges, inverse.reshape(-1, 3)
+from gpja.mesh import TexturedMesh, unique_edges
 
 
 def _split_faces(F: np.ndarray, face_edge: np.ndarray, split: np.ndarray, midpoint_id: np.ndarray) -> np.ndarray:

@@ -58,10 +58,9 @@ def rasterize_fragments(screen: torch.Tensor, faces: torch.Tensor, height: int, 
     n_views, n_vertices, _ = screen.shape
     screen_np = screen.detach().numpy()  # CPU only: the barycentric op below is a numba kernel
     fcs = np.ascontiguousarray(faces.detach().numpy(), dtype=np.int64)
-    tri_id, depth64, facing = rasterize_with_facing(screen_np, fcs, height, width, cull_backfaces)
+    tri_id, depth, facing = rasterize_with_facing(screen_np, fcs, height, width, cull_backfaces)
     counts = np.empty(n_views, dtype=np.int64)
-    depth = np.empty(tri_id.shape, dtype=np.float32)
-    _count_covered(tri_id, depth64, counts, depth)
+    _count_covered(tri_id, counts)
     view_starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     n = int(view_starts[-1])
     pixel = np.empty(n, dtype=np.int64)
@@ -78,13 +77,12 @@ def rasterize_fragments(screen: torch.Tensor, faces: torch.Tensor, height: int, 
 
 
 @nb.njit(cache=True, parallel=True)
-def _count_covered(tri_id, depth64, counts, depth):
-    """Covered pixels per view, and the depth buffer narrowed to float32."""
+def _count_covered(tri_id, counts):
+    """Covered pixels per view."""
     for b in nb.prange(tri_id.shape[0]):
         n = 0
         for y in range(tri_id.shape[1]):
             for x in range(tri_id.shape[2]):
-                depth[b, y, x] = np.float32(depth64[b, y, x])
                 if tri_id[b, y, x] != BACKGROUND:
                     n += 1
         counts[b] = n

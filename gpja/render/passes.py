@@ -182,16 +182,18 @@ def render_views(
     if antialias_edges:
         pairs = find_edge_pairs(frags, screen, faces, topo.adjacency)
         if len(pairs.occluder):
-            # rows for background pixels that silhouettes blend into, after the covered ones
-            row_of = np.full(int(np.prod(frags.shape)), -1, dtype=np.int64)
+            # rows for background pixels that silhouettes blend into, after the covered ones;
+            # covered pixels are listed in increasing flat index, so a binary search finds their rows
             covered = pixels.numpy()
-            row_of[covered] = np.arange(len(covered))
             touched = np.concatenate([pairs.occluder.numpy(), pairs.other.numpy()])
-            extra = np.unique(touched[row_of[touched] < 0])
-            row_of[extra] = len(covered) + np.arange(len(extra))
+            pos = np.searchsorted(covered, touched)
+            hit = pos < len(covered)
+            hit[hit] = covered[pos[hit]] == touched[hit]
+            extra = np.unique(touched[~hit])
+            rows = np.where(hit, pos, len(covered) + np.searchsorted(extra, touched))
             pixels = torch.cat([pixels, torch.from_numpy(extra)])
-            occ_row = torch.from_numpy(row_of[pairs.occluder.numpy()])
-            oth_row = torch.from_numpy(row_of[pairs.other.numpy()])
+            occ_row = torch.from_numpy(rows[: len(pairs.occluder)])
+            oth_row = torch.from_numpy(rows[len(pairs.occluder):])
             t = edge_crossings(screen, pairs, width, height)
             for name, vals in values.items():
                 padded = torch.cat([vals, backgrounds[name].expand(len(extra), -1)], dim=0)

@@ -2,9 +2,9 @@
 
 On the CPU the projection is one numba op with an analytic backward: torch's
 einsum/divide/cat chain materialises several (B, n, 3) intermediates forward
-and again backward, which at 250K vertices x 8 views cost ~57 ms per call
-against ~5 ms fused (benchmarks/bench_render.py). Other devices (the
-nvdiffrast backend) keep the torch expression.
+and again backward: forward + backward at 125K vertices x 8 views, 22.7 ms
+against 8.8 ms fused (``benchmarks/bench_render.py --ops``). Other devices
+(the nvdiffrast backend) keep the torch expression.
 """
 from __future__ import annotations
 

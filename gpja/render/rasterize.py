@@ -95,7 +95,7 @@ def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth, fa
                     if w0 + bias0 < 0 or w1 + bias1 < 0 or w2 + bias2 < 0:
                         continue
                     inv_z = (w0 * iz0 + w1 * iz1 + w2 * iz2) * inv_area
-                    z = 1.0 / inv_z
+                    z = np.float32(1.0 / inv_z)  # stored and compared as float32: half the memory traffic
                     if z < depth[b, py, px]:
                         depth[b, py, px] = z
                         tri_id[b, py, px] = f
@@ -103,11 +103,11 @@ def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth, fa
 
 def rasterize_with_facing(screen: np.ndarray, faces: np.ndarray, height: int, width: int,
                           cull_backfaces: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`rasterize`, plus which faces look towards each camera; depth stays float64.
+    """:func:`rasterize`, plus which faces look towards each camera.
 
     Returns:
         tri_id: (B, H, W) int32, ``BACKGROUND`` where empty.
-        depth: (B, H, W) float64 camera depth in mm, ``inf`` where empty.
+        depth: (B, H, W) float32 camera depth in mm, ``inf`` where empty.
         facing: (B, m) bool, face f is front-facing in view b (negative signed
             area in y-down pixels, from the float coordinates).
     """
@@ -119,7 +119,7 @@ def rasterize_with_facing(screen: np.ndarray, faces: np.ndarray, height: int, wi
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     n_views = screen.shape[0]
     tri_id = np.full((n_views, height, width), BACKGROUND, dtype=np.int32)
-    depth = np.full((n_views, height, width), np.inf, dtype=np.float64)
+    depth = np.full((n_views, height, width), np.inf, dtype=np.float32)
     facing = np.empty((n_views, len(faces)), dtype=np.bool_)
     # In y-down pixel coordinates a counter-clockwise (outward-facing) triangle
     # seen from the front has negative signed area.
@@ -142,4 +142,4 @@ def rasterize(screen: np.ndarray, faces: np.ndarray, height: int, width: int, cu
         depth: (B, H, W) float32 camera depth in mm, ``inf`` where empty.
     """
     tri_id, depth, _ = rasterize_with_facing(screen, faces, height, width, cull_backfaces)
-    return tri_id, depth.astype(np.float32)
+    return tri_id, depth

@@ -18,6 +18,7 @@ import numba as nb
 import numpy as np
 import torch
 
+from gpja.mesh import unique_edges
 from gpja.render.fragments import Fragments
 
 
@@ -34,12 +35,9 @@ def face_adjacency(faces: np.ndarray) -> np.ndarray:
     m = len(faces)
     if m == 0:
         return np.zeros((0, 3), dtype=np.int64)
-    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
-    ends = np.sort(half, axis=1)
-    # one integer per undirected edge, ordered as the (low, high) pairs are: a 1-D unique
-    # is several times faster than np.unique(axis=0) on rows
-    key = ends[:, 0] * (int(faces.max()) + 1) + ends[:, 1]
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    _, face_edge = unique_edges(faces)
+    inverse = face_edge.ravel()
+    counts = np.bincount(inverse)
     order = np.argsort(inverse, kind="stable")
     adj = np.full(3 * m, -1, dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -232,9 +230,11 @@ def edge_crossings(screen: torch.Tensor, pairs: EdgePairs, width: int, height: i
     """
     n_vertices = screen.shape[1]
     flat = screen.reshape(-1, 3)
-    # index_select: its backward (index_add_) is deterministic on the CPU, advanced indexing's is not
-    a = flat.index_select(0, pairs.view * n_vertices + pairs.va)
-    b = flat.index_select(0, pairs.view * n_vertices + pairs.vb)
+    # index_select: its backward (index_add_) is deterministic on the CPU, advanced indexing's is not;
+    # one call for both ends, so the backward zero-fills one screen-sized gradient, not two
+    rows = pairs.view * n_vertices
+    ends = flat.index_select(0, torch.cat([rows + pairs.va, rows + pairs.vb]))
+    a, b = ends[: len(rows)], ends[len(rows):]
     rem_o = pairs.occluder % (width * height)
     rem_q = pairs.other % (width * height)
     ox, oy = (rem_o % width).to(screen.dtype), (rem_o // width).to(screen.dtype)

@@ -48,10 +48,10 @@ def face_areas(V, F):
 
 def test_open_edges_analytic():
     # two triangles sharing edge 0-2: every other edge is open
-    np.testing.assert_array_equal(open_edges(np.array([[0, 1, 2], [0, 2, 3]]), 4),
+    np.testing.assert_array_equal(open_edges(np.array([[0, 1, 2], [0, 2, 3]])),
                                   [[True, True, False], [False, True, True]])
     V, F = sphere(subdivisions=2)
-    assert not open_edges(F, len(V)).any()  # closed surface
+    assert not open_edges(F).any()  # closed surface
 
 
 def test_unwelded_scan_has_no_rim():
