@@ -20,8 +20,9 @@ import numpy as np
 import open3d as o3d
 import trimesh
 
-from gpja.baselines.nicp import ClosestPoints, NicpSettings, nicp
+from gpja.baselines.nicp import NicpSettings, nicp
 from gpja.mesh import TexturedMesh
+from gpja.surface import prepare_surface
 
 AXES_MM = np.array([80.0, 100.0, 90.0])
 
@@ -77,7 +78,7 @@ def make_case(seed: int) -> dict:
 
 
 def scan_to_mesh_mean(V_scan: np.ndarray, V: np.ndarray, F: np.ndarray) -> float:
-    return float(np.linalg.norm(ClosestPoints(V, F).query(V_scan)["points"] - V_scan, axis=1).mean())
+    return float(prepare_surface(V, F, find_boundary=False).closest(V_scan).distance.mean())
 
 
 def main() -> None:

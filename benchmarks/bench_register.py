@@ -37,7 +37,7 @@ PAPER = {"lambdas": [200, 120, 80, 50], "iterations": [375, 375, 375, 375], "ref
 
 
 def scan_to_mesh_mm(scan_V: np.ndarray, V: np.ndarray, F: np.ndarray) -> dict:
-    from gpja.metrics.geometry import closest_points, prepare_surface
+    from gpja.surface import closest_points, prepare_surface
 
     surface = prepare_surface(V, F, scan_V.mean(axis=0), find_boundary=False)
     d = closest_points(surface, scan_V).distance
@@ -64,13 +64,16 @@ def main() -> None:
     parser.add_argument("--results", default="results/synthetic")
     args = parser.parse_args()
 
-    from gpja.cli import _schedule
-    from gpja.data.facescape import load_expression
+    from gpja.data.ground_truth import lighting_for
+    from gpja.data.source import DataSource
     from gpja.register.hra import Switches
-    from gpja.register.pipeline import expression_targets, lighting_for, read_template, register
+    from gpja.register.multiscale import Schedule
+    from gpja.register.pipeline import expression_targets, register
+    from gpja.results import read_template
 
     default = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["registration"]["gpja"]
     settings = {**(PAPER if args.preset == "paper" else default), **json.loads(args.settings)}
+    schedule = Schedule.from_config(settings, "--settings")
     data_root, results = Path(args.data), Path(args.results) / args.subject
     template_dir = results / "template"
     targets_path = results / "targets" / f"{args.expression}.npz"
@@ -78,13 +81,13 @@ def main() -> None:
         if not needed.exists():
             sys.exit(f"bench_register: {needed} is missing; run the workflow first (snakemake --cores 2)")
 
-    data = load_expression(data_root / "images", args.subject, args.expression, scans_root=data_root / "scans",
-                           cache_dir=Path(args.results) / "undistorted")
+    data = DataSource(images_root=data_root / "images", scans_root=data_root / "scans",
+                      cache_dir=Path(args.results) / "undistorted").load(args.subject, args.expression)
     targets = expression_targets(data, targets_path, lighting_for(args.subject, args.expression,
                                                                   data_root / "ground_truth"))
     template, mask = read_template(template_dir)
     start = time.perf_counter()
-    mesh, log = register(template, mask, targets, _schedule(settings), Switches(), progress=lambda m: print(m, file=sys.stderr))
+    mesh, log = register(template, mask, targets, schedule, Switches(), progress=lambda m: print(m, file=sys.stderr))
     seconds = time.perf_counter() - start
     levels = [{"level": lv["level"] + 1 if lv.get("stage") != "warmup" else "warm-up", "vertices": lv["vertices"], "iterations": lv["iterations"],
                "seconds": lv["seconds"], "setup_seconds": lv["setup_seconds"],

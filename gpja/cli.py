@@ -12,40 +12,26 @@ import json
 import logging
 import sys
 import time
-import zlib
 from pathlib import Path
-
-import numpy as np
 
 from gpja.errors import GpjaError, InputError
 
 
-def subject_seed_index(subject: str) -> int:
-    """A stable per-subject integer (independent of the subject list's order)."""
-    return zlib.crc32(str(subject).encode("utf-8")) & 0x7FFFFFFF
-
-
-def _add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
-    p.add_argument("--images-root", required=required, help="FaceScape multiview root: {root}/{subject}/{expression}/{view}.jpg|png")
-    p.add_argument("--scans-root", required=required, help="raw scans: {root}/{subject}/{expression}.ply")
-    p.add_argument("--rt-scale", default=None, help="FaceScape Rt_scale_dict.json (omit when data is in mm)")
-    p.add_argument("--views", nargs="+", default=None, help="view names to use (default: all valid)")
-    p.add_argument("--max-image-size", type=int, default=None, help="downsample images to this longer side")
+def _settings(text: str, option: str = "--settings") -> dict:
+    """A JSON-object option (a config section, e.g. ``--settings``, read by a settings class's ``from_config``)."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise InputError(option, f"not valid JSON ({err})") from None
+    if not isinstance(value, dict):
+        raise InputError(option, f"expected a JSON object, got {text!r}")
+    return value
 
 
 def cmd_synth(args: argparse.Namespace) -> None:
-    from gpja.data.synthetic import SynthConfig, synthesize_subject
+    from gpja.data.synthetic import SynthConfig, subject_seed_index, synthesize_subject
 
-    try:
-        settings = json.loads(args.settings)
-    except json.JSONDecodeError as err:
-        raise InputError("--settings", f"not valid JSON ({err})") from None
-    if "expressions" in settings:
-        settings["expressions"] = tuple(settings["expressions"])
-    try:
-        cfg = SynthConfig(**settings)
-    except TypeError as err:
-        raise InputError("--settings", str(err)) from None
+    cfg = SynthConfig.from_config(_settings(args.settings), "--settings")
     start = time.perf_counter()
     summary = synthesize_subject(
         args.subject, subject_seed_index(args.subject), cfg,
@@ -58,41 +44,12 @@ def cmd_synth(args: argparse.Namespace) -> None:
     print(json.dumps(summary, indent=1, default=str), flush=True)
 
 
-def summarize_expression(data) -> dict:
-    """A JSON-able summary of a loaded expression, with consistency checks."""
-    views = []
-    for view in data.views:
-        entry = {"name": view.name, "width": view.camera.width, "height": view.camera.height,
-                 "image": str(view.path), "mean_rgb": view.image.reshape(-1, 3).mean(axis=0).round(4).tolist()}
-        if data.scan is not None:
-            uv, z = view.camera.project(data.scan.V)
-            inside = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= view.camera.width - 0.5) \
-                & (uv[:, 1] >= -0.5) & (uv[:, 1] <= view.camera.height - 0.5)
-            entry["scan_fraction_in_view"] = round(float(inside.mean()), 4)
-            if inside.mean() < 0.05:
-                logging.warning("view %s: only %.1f%% of the scan projects into the image; cameras and scan may be misaligned",
-                                view.name, 100 * inside.mean())
-        views.append(entry)
-    summary = {"subject": data.subject, "expression": data.expression, "views": views,
-               "rt_scale": None if data.R is None else {"scale": data.scale, "R": data.R.tolist(), "t": data.t.tolist()}}
-    if data.scan is not None:
-        from gpja.mesh import TexturedMesh
-
-        V = data.scan.V
-        edges = TexturedMesh(V, data.scan.F).edge_lengths()
-        summary["scan"] = {"path": str(data.scan.path), "n_vertices": int(len(V)), "n_faces": int(len(data.scan.F)),
-                           "bbox_min_mm": V.min(axis=0).round(3).tolist(), "bbox_max_mm": V.max(axis=0).round(3).tolist(),
-                           "median_edge_mm": round(float(np.median(edges)), 4)}
-    return summary
-
-
 def cmd_check_data(args: argparse.Namespace) -> None:
-    from gpja.data.facescape import load_expression
+    from gpja.data.source import DataSource
+    from gpja.data.summary import summarize_expression
     from gpja.io import write_json
 
-    data = load_expression(args.images_root, args.subject, args.expression, views=args.views,
-                           scans_root=args.scans_root, rt_scale_path=args.rt_scale,
-                           cache_dir=args.cache_dir, max_image_size=args.max_image_size)
+    data = DataSource.from_args(args).load(args.subject, args.expression)
     summary = summarize_expression(data)
     print(f"check-data: {args.subject}/{args.expression}: {len(data.views)} views, "
           f"scan {summary['scan']['n_vertices']} vertices, median edge {summary['scan']['median_edge_mm']} mm", flush=True)
@@ -100,79 +57,54 @@ def cmd_check_data(args: argparse.Namespace) -> None:
 
 
 def cmd_scan_targets(args: argparse.Namespace) -> None:
-    from gpja.data.facescape import load_expression
+    from gpja.data.source import DataSource
+    from gpja.data.summary import check_one_image_size, targets_preview, warn_on_empty_targets
     from gpja.io import write_image
-    from gpja.render import render_scan_targets, resolve_backend
+    from gpja.render import render_scan_targets, renderer, resolve_backend
 
-    data = load_expression(args.images_root, args.subject, args.expression, views=args.views,
-                           scans_root=args.scans_root, rt_scale_path=args.rt_scale,
-                           cache_dir=args.cache_dir, max_image_size=args.max_image_size)
-    sizes = {(v.camera.width, v.camera.height) for v in data.views}
-    if len(sizes) != 1:
-        raise InputError(args.images_root, f"{args.subject}/{args.expression}: views differ in size {sorted(sizes)}; "
-                                           "set data.max_image_size so they share one")
+    data = DataSource.from_args(args).load(args.subject, args.expression)
+    check_one_image_size(data, args.images_root)
     backend = resolve_backend(args.backend)
     start = time.perf_counter()
-    targets = render_scan_targets(data.scan.V, data.scan.F, data.cameras, cache_path=args.output, backend=backend)
+    targets = render_scan_targets(data.scan.V, data.scan.F, data.cameras, cache_path=args.output,
+                                  render=renderer(backend))
     covered = targets["coverage"][..., 0].numpy()
     print(f"scan-targets: {args.subject}/{args.expression}: {len(data.views)} views, backend {backend}, "
           f"{time.perf_counter() - start:.2f} s, scan covers {100 * covered.mean():.1f}% of the pixels", flush=True)
-    for view, cov in zip(data.views, covered):
-        if cov.sum() == 0:
-            logging.warning("view %s: the scan covers no pixel of this view", view.name)
+    warn_on_empty_targets([view.name for view in data.views], covered)
     if args.preview:
-        # one row per view set: reference image | scan normals | scan depth (near = bright)
-        normal = (0.5 + 0.5 * targets["normal"].numpy()) * covered[..., None]
-        rows = []
-        for view, n, d, cov in zip(data.views, normal, targets["depth"][..., 0].numpy(), covered):
-            full = cov > 0.99  # silhouette pixels blend depth with the 0 background
-            lo, hi = np.percentile(d[full], [1, 99]) if full.any() else (0.0, 1.0)  # per view: near = bright
-            shade = np.clip(0.15 + 0.85 * (hi - d) / max(hi - lo, 1e-6), 0, 1) * cov
-            rows.append(np.concatenate([view.image, n, np.repeat(shade[..., None], 3, -1)], axis=1))
-        write_image(args.preview, np.concatenate(rows, axis=0))
+        write_image(args.preview, targets_preview([view.image for view in data.views], targets["normal"].numpy(),
+                                                  targets["depth"][..., 0].numpy(), covered))
 
 
-def _load_for_registration(args):
-    from gpja.data.facescape import load_expression
-    from gpja.register.pipeline import expression_targets, lighting_for, warn_on_holes
+def _renderer(args: argparse.Namespace):
+    """The ``render_views`` of ``--backend`` (``gpja.render.renderer``; an unknown or missing backend is an InputError)."""
+    from gpja.render import renderer
 
-    data = load_expression(args.images_root, args.subject, args.expression, views=args.views,
-                           scans_root=args.scans_root, rt_scale_path=args.rt_scale,
-                           cache_dir=args.cache_dir, max_image_size=args.max_image_size)
+    return renderer(args.backend)
+
+
+def _load_for_registration(args, render=None):
+    """The expression's data and its registration targets (images, scan targets, SH lighting)."""
+    from gpja.data.ground_truth import lighting_for
+    from gpja.data.source import DataSource
+    from gpja.register.pipeline import expression_targets, warn_on_holes
+
+    data = DataSource.from_args(args).load(args.subject, args.expression)
     warn_on_holes(data)
     sh = lighting_for(args.subject, args.expression, args.ground_truth_root)
-    return data, expression_targets(data, args.targets, sh)
-
-
-def _settings(text: str) -> dict:
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as err:
-        raise InputError("--settings", f"not valid JSON ({err})") from None
-
-
-def _schedule(cfg: dict):
-    from gpja.register.multiscale import Schedule
-
-    return Schedule(lambdas=tuple(float(x) for x in cfg["lambdas"]), iterations=tuple(int(x) for x in cfg["iterations"]),
-                    refine_factor=float(cfg.get("refine_factor", 2.5)), lr_fraction=float(cfg.get("lr_fraction", 0.1)),
-                    lr_decay=float(cfg.get("lr_decay", 1.0)),
-                    color_pool=tuple(int(p) for p in cfg["color_pool"]) if cfg.get("color_pool") else None,
-                    warmup_iterations=int(cfg.get("warmup_iterations", 0)))
+    return data, expression_targets(data, args.targets, sh, render=render)
 
 
 def cmd_template(args: argparse.Namespace) -> None:
     from gpja.register.pipeline import write_template
     from gpja.register.template import TemplateSettings, create_template
 
-    cfg = _settings(args.settings)
-    data, targets = _load_for_registration(args)
-    settings = TemplateSettings(bust_edge_mm=float(cfg.get("bust_edge_mm", 6.0)), schedule=_schedule(cfg),
-                                texture_size=int(cfg.get("texture_size", 1024)),
-                                texture_iterations=int(cfg.get("texture_iterations", 200)),
-                                texture_lr=float(cfg.get("texture_lr", 0.05)), template_faces=int(cfg.get("faces", 32000)))
+    settings = TemplateSettings.from_config(_settings(args.settings), "--settings")
+    render = _renderer(args)
+    data, targets = _load_for_registration(args, render)
     start = time.perf_counter()
-    template = create_template(data.scan.V, targets, settings, progress=lambda m: print(m, flush=True))
+    template = create_template(data.scan.V, targets, settings, progress=lambda m: print(m, flush=True), render=render)
     write_template(template, args.output_dir)
     print(f"template: {args.subject} done in {time.perf_counter() - start:.1f} s "
           f"({len(template.mesh.V)} vertices) -> {args.output_dir}", flush=True)
@@ -181,17 +113,22 @@ def cmd_template(args: argparse.Namespace) -> None:
 def cmd_register(args: argparse.Namespace) -> None:
     import os
 
+    from gpja.data.units import check_units
     from gpja.register.hra import Switches
-    from gpja.register.pipeline import check_units, read_template, register, write_registration
+    from gpja.register.multiscale import Schedule
+    from gpja.register.pipeline import register
+    from gpja.results import read_template, write_registration
 
-    cfg = _settings(args.settings)
+    schedule = Schedule.from_config(_settings(args.settings), "--settings")
     template, mask = read_template(args.template_dir)
-    data, targets = _load_for_registration(args)
+    render = _renderer(args)
+    data, targets = _load_for_registration(args, render)
     check_units(template, data.scan.V, data.scan.path)
     off = set(args.without or [])
     switches = Switches(color="color" not in off, depth="depth" not in off, normal="normal" not in off, mask="mask" not in off)
     start = time.perf_counter()
-    mesh, log = register(template, mask, targets, _schedule(cfg), switches, progress=lambda m: print(m, flush=True))
+    mesh, log = register(template, mask, targets, schedule, switches, progress=lambda m: print(m, flush=True),
+                         render=render)
     texture_ref = os.path.relpath(Path(args.template_dir) / "texture.png", Path(args.output).parent)
     summary = {"subject": args.subject, "expression": args.expression, "switches": switches.__dict__,
                "seconds": round(time.perf_counter() - start, 2), **log.to_json()}
@@ -199,52 +136,51 @@ def cmd_register(args: argparse.Namespace) -> None:
     print(f"register: {args.subject}/{args.expression} done in {summary['seconds']} s ({len(mesh.V)} vertices)", flush=True)
 
 
-def cmd_nicp(args: argparse.Namespace) -> None:
-    from gpja.baselines.nicp import run_nicp_files, settings_from_config
+def cmd_baseline(args: argparse.Namespace) -> None:
+    from gpja.data.source import DataSource
+    from gpja.methods import method, names
 
-    settings = settings_from_config(_settings(args.settings), "--settings")
+    entry = method(args.method)
+    if entry.kind != "baseline":
+        raise InputError("--method", f"{args.method!r} is not a baseline; registered: {', '.join(names('baseline'))}")
+    section = _settings(args.section, "--section")  # the config's baselines.<method>
     start = time.perf_counter()
-    log = run_nicp_files(args.template_dir, args.scans_root, args.subject, args.expression, args.output,
-                         landmarks=args.landmarks, template_landmarks=args.template_landmarks,
-                         template_expression=args.template_expression, rt_scale=args.rt_scale, settings=settings,
-                         progress=lambda m: print(m, flush=True))
-    print(f"nicp: {args.subject}/{args.expression} done in {time.perf_counter() - start:.1f} s "
+    log = entry.run_function()(args.template_dir, DataSource.from_args(args), args.subject, args.expression,
+                               args.output, section, args.template_expression, lambda m: print(m, flush=True))
+    print(f"{args.method}: {args.subject}/{args.expression} done in {time.perf_counter() - start:.1f} s "
           f"({log.get('vertices', '?')} vertices)", flush=True)
 
 
 def cmd_import(args: argparse.Namespace) -> None:
     from gpja.baselines.external import import_mesh
-    from gpja.data.facescape import scan_path
+    from gpja.data.source import DataSource
 
     log = import_mesh(args.pattern, args.subject, args.expression, args.output, transform_pattern=args.transform,
-                      texture=args.texture, scan=scan_path(args.scans_root, args.subject, args.expression),
-                      rt_scale=args.rt_scale, method=args.method)
+                      texture=args.texture, source=DataSource.from_args(args), method=args.method)
     print(f"import: {args.method} {args.subject}/{args.expression} <- {log['source']} "
           f"({log['vertices']} vertices{'' if log['has_uv'] else ', no UVs'})", flush=True)
 
 
 def cmd_metrics(args: argparse.Namespace) -> None:
+    from gpja.data.source import DataSource
     from gpja.io import write_json
     from gpja.metrics.evaluate import MetricSettings, evaluate_expression, summary_line
 
-    try:
-        settings = MetricSettings.from_config(_settings(args.settings))
-    except TypeError as err:
-        raise InputError("--settings", str(err)) from None
+    settings = MetricSettings.from_config(_settings(args.settings), "--settings")
     start = time.perf_counter()
     result = evaluate_expression(
         mesh_path=args.mesh, subject=args.subject, expression=args.expression, method=args.method,
-        template_dir=args.template_dir, images_root=args.images_root, scans_root=args.scans_root,
-        targets_path=args.targets, out_dir=args.output_dir, ground_truth_root=args.ground_truth_root,
-        rt_scale=args.rt_scale, views=args.views, cache_dir=args.cache_dir, max_image_size=args.max_image_size,
-        template_expression=args.template_expression, settings=settings)
+        template_dir=args.template_dir, source=DataSource.from_args(args), targets_path=args.targets,
+        out_dir=args.output_dir, ground_truth_root=args.ground_truth_root,
+        template_expression=args.template_expression, settings=settings, render=_renderer(args))
     write_json(args.output, result)
     print(f"metrics: {args.subject}/{args.method}/{args.expression}: {summary_line(result)} "
           f"({time.perf_counter() - start:.1f} s)", flush=True)
 
 
 def cmd_tables(args: argparse.Namespace) -> None:
-    from gpja.report.tables import build_tables, write_table
+    from gpja.report.formats import write_table
+    from gpja.report.tables import build_tables
 
     tables = build_tables(args.results, args.benchmarks, args.subjects, args.methods, args.expressions,
                           names=args.tables, published=args.published, ablation_subjects=args.ablation_subjects,
@@ -255,15 +191,17 @@ def cmd_tables(args: argparse.Namespace) -> None:
 
 
 def cmd_figure(args: argparse.Namespace) -> None:
-    from gpja.report.figures import FigureSettings, RunFiles, make_figure
+    from gpja.data.source import DataSource
+    from gpja.render import resolve_backend
+    from gpja.report.figures import FigureRequest, FigureSettings, RunFiles, make_figure
+    from gpja.results import Layout
 
-    settings = FigureSettings.from_config(_settings(args.settings))
-    files = RunFiles(results=Path(args.results), images_root=args.images_root and Path(args.images_root),
-                     scans_root=args.scans_root and Path(args.scans_root),
-                     rt_scale=args.rt_scale and Path(args.rt_scale), views=args.views,
-                     cache_dir=args.cache_dir and Path(args.cache_dir), max_image_size=args.max_image_size)
+    request = FigureRequest(RunFiles(Layout(args.results), DataSource.from_args(args)), args.subject,
+                            tuple(args.methods), tuple(args.expressions),
+                            FigureSettings.from_config(_settings(args.settings), "--settings"),
+                            backend=resolve_backend(args.backend))
     start = time.perf_counter()
-    png, pdf = make_figure(args.kind, files, args.subject, args.methods, args.expressions, settings, args.output)
+    png, pdf = make_figure(args.kind, request, args.output)
     print(f"figure: {args.kind} of subject {args.subject} -> {png}, {pdf} ({time.perf_counter() - start:.1f} s)",
           flush=True)
 
@@ -287,14 +225,57 @@ def cmd_check_regression(args: argparse.Namespace) -> int:
     return 1 if failures else 0
 
 
-def _add_registration_args(p: argparse.ArgumentParser) -> None:
+def _add_expression_args(p: argparse.ArgumentParser, method: str | None = None) -> None:
+    """``--subject`` and ``--expression`` (and ``--method``, with this help, for a scored method's mesh)."""
     p.add_argument("--subject", required=True)
     p.add_argument("--expression", required=True)
+    if method:
+        p.add_argument("--method", required=True, help=method)
+
+
+def _add_scan_args(p: argparse.ArgumentParser, help: str = "raw scans: {root}/{subject}/{expression}.ply") -> None:
+    """Where the scans are: ``--scans-root`` and ``--rt-scale``."""
+    p.add_argument("--scans-root", required=True, help=help)
+    p.add_argument("--rt-scale", default=None, help="FaceScape Rt_scale_dict.json (omit when data is in mm)")
+
+
+def _add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
+    """Where a dataset is (the options of :meth:`gpja.data.source.DataSource.from_args`)."""
+    p.add_argument("--images-root", required=required, help="FaceScape multiview root: {root}/{subject}/{expression}/{view}.jpg|png")
+    p.add_argument("--scans-root", required=required, help="raw scans: {root}/{subject}/{expression}.ply")
+    p.add_argument("--rt-scale", default=None, help="FaceScape Rt_scale_dict.json (omit when data is in mm)")
+    p.add_argument("--views", nargs="+", default=None, help="view names to use (default: all valid)")
+    p.add_argument("--max-image-size", type=int, default=None, help="downsample images to this longer side")
+    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
+
+
+def _add_registration_args(p: argparse.ArgumentParser) -> None:
+    """The options of the steps that fit a mesh to one expression's images and scan (template, register)."""
+    _add_expression_args(p)
     _add_data_args(p)
     p.add_argument("--ground-truth-root", default=None, help="synthetic ground truth (for the SH lighting)")
-    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
     p.add_argument("--targets", required=True, help="the expression's scan targets .npz (rendered if missing)")
     p.add_argument("--settings", required=True, help="JSON: lambdas, iterations, refine_factor, lr_fraction, ...")
+    _add_backend_arg(p)
+
+
+def _add_backend_arg(p: argparse.ArgumentParser) -> None:
+    """``--backend``: checked when the command runs (gpja.render.BACKENDS; importing it here would load torch
+    for every command)."""
+    p.add_argument("--backend", default="auto", help="render backend of every render of the step: auto | cpu | "
+                                                     "nvdiffrast (auto: nvdiffrast when it imports and CUDA is visible)")
+
+
+def _add_selection_args(p: argparse.ArgumentParser, required: bool, note: str | None = None,
+                        methods: str | None = None) -> None:
+    """``--subjects``, ``--expressions`` and ``--methods``: the part of a run a report step reads.
+
+    ``note`` starts each option's help (``"<note> subjects"``); ``methods`` is the help of ``--methods``.
+    """
+    helps = {name: f"{note} {name}" if note else None for name in ("subjects", "expressions", "methods")}
+    helps["methods"] = methods or helps["methods"]
+    for name, text in helps.items():
+        p.add_argument(f"--{name}", nargs="+", required=required, default=None, help=text)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -315,19 +296,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_synth)
 
     p = sub.add_parser("check-data", help="load one expression through the FaceScape reader and summarise it")
-    p.add_argument("--subject", required=True)
-    p.add_argument("--expression", required=True)
+    _add_expression_args(p)
     _add_data_args(p)
-    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
     p.add_argument("--output", required=True, help="summary JSON")
     p.set_defaults(func=cmd_check_data)
 
     p = sub.add_parser("scan-targets", help="render an expression's scan depth/normal/coverage targets once per view set")
-    p.add_argument("--subject", required=True)
-    p.add_argument("--expression", required=True)
+    _add_expression_args(p)
     _add_data_args(p)
-    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
-    p.add_argument("--backend", default="auto", help="render backend: auto | cpu | nvdiffrast")
+    _add_backend_arg(p)
     p.add_argument("--output", required=True, help="targets .npz")
     p.add_argument("--preview", default=None, help="PNG: reference | scan normals | scan depth, one row per view")
     p.set_defaults(func=cmd_scan_targets)
@@ -344,60 +321,50 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", required=True, help="registered mesh .obj (a .json log is written beside it)")
     p.set_defaults(func=cmd_register)
 
-    p = sub.add_parser("nicp", help="register the subject's template to one expression with optimal-step NICP")
-    p.add_argument("--subject", required=True)
-    p.add_argument("--expression", required=True)
-    p.add_argument("--scans-root", required=True)
-    p.add_argument("--rt-scale", default=None, help="FaceScape Rt_scale_dict.json (omit when data is in mm)")
+    p = sub.add_parser("baseline", help="register the subject's template to one expression with a baseline "
+                                        "(a `baseline` method of gpja.methods, e.g. nicp)")
+    _add_expression_args(p, method="the baseline's name in gpja.methods.METHODS (e.g. nicp)")
+    _add_data_args(p, required=False)  # each baseline reads what it needs (NICP: the scans)
     p.add_argument("--template-dir", required=True)
     p.add_argument("--template-expression", default="3_mouth_stretch")
-    p.add_argument("--landmarks", required=True,
-                   help="pattern ({subject}, {expression}) of the scan landmark files (68x3 JSON/TXT, or ground-truth .npz)")
-    p.add_argument("--template-landmarks", default=None,
-                   help="pattern ({subject}) of template landmark vertex indices or points; default: the template "
-                        "expression's landmark file")
-    p.add_argument("--settings", default="{}", help="JSON: NICP settings (steps, max_distance_mm, ...)")
+    p.add_argument("--section", default="{}", help="JSON: the config's baselines.<method> section")
     p.add_argument("--output", required=True, help="registered mesh .obj (a .json log is written beside it)")
-    p.set_defaults(func=cmd_nicp)
+    p.set_defaults(func=cmd_baseline)
 
     p = sub.add_parser("import", help="bring a mesh made by another tool into the workflow (scored like the others)")
-    p.add_argument("--subject", required=True)
-    p.add_argument("--expression", required=True)
-    p.add_argument("--method", required=True, help="the imported method's name")
+    _add_expression_args(p, method="the imported method's name")
     p.add_argument("--pattern", required=True, help="mesh path pattern with {subject} and {expression} (OBJ or PLY)")
     p.add_argument("--transform", default=None, help="transform JSON pattern (4x4, {scale, R, t} or Rt_scale_dict)")
     p.add_argument("--texture", default=None, help="texture the imported OBJ should reference (e.g. the template's)")
-    p.add_argument("--scans-root", required=True, help="to check the mesh's units and placement against the scan")
-    p.add_argument("--rt-scale", default=None)
+    _add_scan_args(p, help="to check the mesh's units and placement against the scan")
     p.add_argument("--output", required=True, help="the imported mesh .obj (a .json log beside it)")
     p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("metrics", help="score one method's mesh of one expression: geometry, photometry, correspondence")
-    p.add_argument("--subject", required=True)
-    p.add_argument("--expression", required=True)
-    p.add_argument("--method", required=True, help="the method's name (recorded in the JSON)")
+    _add_expression_args(p, method="the method's name (recorded in the JSON)")
+    _add_data_args(p)
+    p.add_argument("--ground-truth-root", default=None, help="synthetic ground truth (lighting, correspondence)")
+    p.add_argument("--targets", default=None, help="the expression's scan targets .npz")
     p.add_argument("--mesh", required=True, help="the method's mesh .obj (template UVs for photometric metrics)")
     p.add_argument("--template-dir", required=True, help="the subject's template folder (shared texture)")
     p.add_argument("--template-expression", default="3_mouth_stretch")
-    _add_data_args(p)
-    p.add_argument("--ground-truth-root", default=None, help="synthetic ground truth (lighting, correspondence)")
-    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
-    p.add_argument("--targets", default=None, help="the expression's scan targets .npz")
     p.add_argument("--settings", default="{}", help="JSON: the config's metrics section")
+    _add_backend_arg(p)
     p.add_argument("--output", required=True, help="metrics JSON")
     p.add_argument("--output-dir", required=True, help="per-vertex errors, renders and error images")
     p.set_defaults(func=cmd_metrics)
+
+    from gpja.report.published import PUBLISHED_CHOICES
+    from gpja.report.tables import TABLE_NAMES
 
     p = sub.add_parser("tables", help="the paper's tables (geometry, photometry, ablations, timing, correspondence) "
                                       "as CSV, Markdown and LaTeX")
     p.add_argument("--results", required=True, help="results/{dataset}: the metrics JSONs and registration logs")
     p.add_argument("--benchmarks", required=True, help="benchmarks/{dataset}: Snakemake's benchmark TSVs")
-    p.add_argument("--subjects", nargs="+", required=True)
-    p.add_argument("--expressions", nargs="+", required=True)
-    p.add_argument("--methods", nargs="+", required=True, help="in table order, e.g. gpja nicp gpja-no_normal")
+    _add_selection_args(p, required=True, methods="in table order, e.g. gpja nicp gpja-no_normal")
     p.add_argument("--tables", nargs="+", default=None,
-                   help="geometry photometric ablation correspondence timing (default: those the run supports)")
-    p.add_argument("--published", choices=["facescape"], default=None,
+                   help=f"{' '.join(TABLE_NAMES)} (default: those the run supports)")
+    p.add_argument("--published", choices=PUBLISHED_CHOICES, default=None,
                    help="print the paper's published FaceScape numbers beside the reproduced ones")
     p.add_argument("--ablation-subjects", nargs="+", default=None,
                    help="the subjects the ablation variants ran on (default: --subjects)")
@@ -409,14 +376,14 @@ def build_parser() -> argparse.ArgumentParser:
     from gpja.report.figures import FIGURES
 
     p = sub.add_parser("figure", help="one of the paper's figures for one subject, as PNG and PDF")
-    p.add_argument("kind", choices=FIGURES)
+    p.add_argument("kind", choices=list(FIGURES), help="a figure of gpja.report.figures.FIGURES")
     p.add_argument("--subject", required=True)
     p.add_argument("--methods", nargs="+", default=["gpja"], help="columns (geometric_errors); else the first is drawn")
     p.add_argument("--expressions", nargs="+", required=True)
     p.add_argument("--results", required=True, help="results/{dataset}")
     _add_data_args(p, required=False)  # images for the photometric figures, scans for the geometric ones
-    p.add_argument("--cache-dir", default=None, help="where undistorted images are cached")
     p.add_argument("--settings", default="{}", help="JSON: the config's figures section")
+    _add_backend_arg(p)
     p.add_argument("--output", required=True, help="the .png; the .pdf is written beside it")
     p.set_defaults(func=cmd_figure)
 
@@ -427,9 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerances", default=None, help="JSON overriding allowances: {metric: {absolute, relative}}")
     p.add_argument("--write-reference", action="store_true",
                    help="write --reference from the run's metrics instead of checking")
-    p.add_argument("--subjects", nargs="+", default=None, help="with --write-reference: only these subjects")
-    p.add_argument("--methods", nargs="+", default=None, help="with --write-reference: only these methods")
-    p.add_argument("--expressions", nargs="+", default=None, help="with --write-reference: only these expressions")
+    _add_selection_args(p, required=False, note="with --write-reference: only these")
     p.set_defaults(func=cmd_check_regression)
     return parser
 

@@ -11,6 +11,8 @@ import json
 import os
 import shutil
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -139,8 +141,9 @@ def read_npz(path: str | Path) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as data:
             return {k: data[k] for k in data.files}
-    except (OSError, ValueError) as err:
-        raise InputError(path, f"corrupt npz ({err})") from None
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as err:
+        # a truncated or foreign file fails inside numpy's zip/zlib readers
+        raise InputError(path, f"corrupt npz ({type(err).__name__}: {err})") from None
 
 
 def link_or_copy(src: str | Path, dst: str | Path) -> None:

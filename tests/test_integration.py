@@ -12,9 +12,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from gpja.cli import subject_seed_index
 from gpja.data.facescape import load_expression
-from gpja.data.synthetic import SynthConfig, synthesize_subject
+from gpja.data.synthetic import SynthConfig, subject_seed_index, synthesize_subject
 from gpja.io import read_npz
 from tests.tolerances import LANDMARK_TO_SCAN_MM
 

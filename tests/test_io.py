@@ -48,6 +48,13 @@ def test_json_and_npz_errors(tmp_path):
     (tmp_path / "b.npz").write_bytes(b"garbage")
     with pytest.raises(InputError, match="b.npz: corrupt npz"):
         read_npz(tmp_path / "b.npz")
+    # cut off mid-write: numpy fails inside its zip / zlib readers, not with OSError
+    write_npz(tmp_path / "big.npz", x=np.random.default_rng(0).random(4096))
+    data = (tmp_path / "big.npz").read_bytes()
+    for n in (len(data) // 2, len(data) - 30):
+        (tmp_path / "cut.npz").write_bytes(data[:n])
+        with pytest.raises(InputError, match="cut.npz: corrupt npz"):
+            read_npz(tmp_path / "cut.npz")
 
 
 def test_link_or_copy_replaces(tmp_path):

@@ -88,7 +88,7 @@ def test_dry_run_schedules_synthesis_and_checks(tmp_path):
     assert int(counts["register_expression"]) == n_subjects * n_expressions + n_ablation
     baselines = cfg["baselines"]
     n_nicp = n_subjects * n_expressions if baselines["nicp"]["enabled"] else 0
-    assert int(counts.get("nicp_expression", 0)) == n_nicp
+    assert int(counts.get("baseline_expression", 0)) == n_nicp
     compared = 1 + baselines["nicp"]["enabled"] + len(baselines["external"])
     assert int(counts["compute_metrics"]) == n_subjects * n_expressions * compared + n_ablation
     for kind in ("template_stages", "geometric_errors", "photometric_errors", "closeups", "convergence"):
@@ -205,15 +205,50 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
     assert (work / f"benchmarks/{cfg['dataset']}/S01/synthesize_subject.tsv").is_file()
 
 
-def test_nicp_rule_passes_the_landmark_pattern_not_this_jobs_file(tmp_path):
-    """A params string would have its {subject}/{expression} filled by Snakemake; NICP needs the pattern
-    (it reads the template expression's landmarks through it too)."""
+def test_baseline_rule_passes_the_config_section_with_its_patterns_unfilled(tmp_path):
+    """A params string would have its {subject}/{expression} filled by Snakemake; NICP needs the landmark
+    pattern (it reads the template expression's landmarks through it too). The generic baseline rule passes
+    the config's baselines.nicp section as it is, and writes where the NICP rule always wrote."""
     work = copy_workflow(tmp_path)
     target = "results/synthetic/S01/nicp/2_smile.obj"
     out = subprocess.run([*SNAKEMAKE, "-n", "-p", "--cores", "1", "--", target], cwd=work,
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     cfg = yaml.safe_load((ROOT / "config/config.yaml").read_text())
-    pattern = cfg["baselines"]["nicp"]["landmarks"]
-    assert "{subject}" in pattern
-    assert f"--landmarks {pattern}" in out.stdout or f"--landmarks '{pattern}'" in out.stdout, out.stdout[-2000:]
+    section = cfg["baselines"]["nicp"]
+    assert "{subject}" in section["landmarks"]
+    shell = next(line for line in out.stdout.splitlines() if " baseline --method nicp " in line)
+    passed = re.search(r"--section '([^']*)'", shell)
+    assert passed and json.loads(passed.group(1)) == section, shell
+    assert "--output results/synthetic/S01/nicp/2_smile.obj > logs/synthetic/S01/nicp/2_smile.log" in shell
+
+
+def test_config_method_names_are_checked_when_the_config_loads(tmp_path):
+    """An imported method may not take a registered method's name: `snakemake -n` stops with one line."""
+    work = copy_workflow(tmp_path)
+    cfg = yaml.safe_load((ROOT / "config/ci.yaml").read_text())
+    cfg["baselines"]["external"] = [{"name": "nicp", "pattern": "elsewhere/{subject}/{expression}.obj"}]
+    (work / "bad.yaml").write_text(yaml.safe_dump(cfg))
+    out = subprocess.run([*SNAKEMAKE, "-n", "--cores", "1", "--configfile", "bad.yaml"], cwd=work,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode != 0
+    assert "baselines.external: imported method name 'nicp' is taken" in out.stderr + out.stdout
+
+
+def test_schema_lists_exactly_the_registered_ablation_variants():
+    """The schema may restate the registry's ablation names for its error message, but never disagree with it."""
+    from gpja.methods import names
+
+    schema = yaml.safe_load((ROOT / "workflow/schemas/config.schema.yaml").read_text())
+    variants = schema["properties"]["registration"]["properties"]["ablations"]["properties"]["variants"]
+    enum = variants["items"].get("enum")
+    assert enum is None or enum == names("ablation")
+
+
+def test_every_table_and_figure_has_its_caption():
+    from gpja.report.figures import FIGURES
+    from gpja.report.tables import TABLE_NAMES
+
+    captions = {p.name for p in (ROOT / "workflow/report").glob("*.rst")}
+    assert {FIGURES[name].caption for name in FIGURES} <= captions
+    assert {f"table_{name}.rst" for name in TABLE_NAMES} <= captions

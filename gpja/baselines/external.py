@@ -29,10 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
-from gpja.data.facescape import check_head_units, read_rt_scale
+from gpja.data.facescape import read_rt_scale
+from gpja.data.source import DataSource
+from gpja.data.units import check_head_units, check_units
 from gpja.errors import InputError
 from gpja.io import fill_path_pattern, read_image, read_json, write_json
 from gpja.mesh import TexturedMesh, read_obj, read_ply, write_obj
+from gpja.surface import prepare_surface
 
 MESH_SUFFIXES = (".obj", ".ply")
 #: Rotation check: |R^T R - I| (after dividing out the scale) must stay below this.
@@ -122,11 +125,8 @@ def check_against_scan(V: np.ndarray, F: np.ndarray, scan_V: np.ndarray, source:
     Returns:
         the median scan-to-mesh distance, mm.
     """
-    from gpja.baselines.nicp import ClosestPoints
-    from gpja.register.pipeline import check_units
-
     check_units(TexturedMesh(V, F), scan_V, source)
-    gap = float(np.median(np.linalg.norm(ClosestPoints(V, F).query(scan_V)["points"] - scan_V, axis=1)))
+    gap = float(np.median(prepare_surface(V, F, find_boundary=False).closest(scan_V).distance))
     if gap > MAX_MEDIAN_GAP_MM:
         raise InputError(source, f"the mesh lies a median {gap:.3g} mm from the scan (> {MAX_MEDIAN_GAP_MM:g} mm): "
                                  "missing or wrong transform?")
@@ -135,8 +135,7 @@ def check_against_scan(V: np.ndarray, F: np.ndarray, scan_V: np.ndarray, source:
 
 def import_mesh(pattern: str | Path, subject: str, expression: str, out_obj: str | Path,
                 transform_pattern: str | Path | None = None, texture: str | Path | None = None,
-                scan: str | Path | None = None, rt_scale: str | Path | None = None,
-                method: str = "external") -> dict:
+                source: DataSource | None = None, method: str = "external") -> dict:
     """Bring one externally registered mesh into the method's output location.
 
     Args:
@@ -146,8 +145,8 @@ def import_mesh(pattern: str | Path, subject: str, expression: str, out_obj: str
         texture: an image the output's MTL should reference instead of the mesh's
             own texture (e.g. a shared texture); None keeps the mesh's own texture,
             copied next to the output as ``{stem}.png``, if it has one.
-        scan: the expression's scan (PLY) to check size and placement against; None skips it.
-        rt_scale: FaceScape's ``Rt_scale_dict.json`` that brings ``scan`` into mm.
+        source: the dataset whose scan of the expression (in mm) the mesh's size and placement
+            are checked against; None skips the check.
         method: the imported method's name, recorded in the log.
     Returns:
         The log (also written next to the OBJ).
@@ -169,13 +168,10 @@ def import_mesh(pattern: str | Path, subject: str, expression: str, out_obj: str
         mesh = mesh.with_vertices(apply_similarity(mesh.V, s, R, t))
         log["transform"] = {"file": str(tpath), "scale": s, "R": R.tolist(), "t": t.tolist()}
     check_head_units(mesh.V, path)
-    if scan is not None:
-        from gpja.data.facescape import read_scan
-
-        rs = read_rt_scale(rt_scale, subject, expression) if rt_scale is not None else (1.0, None, None)
-        scan_V = read_scan(scan, *rs).V
-        log["scan"] = str(scan)
-        log["median_scan_gap_mm"] = check_against_scan(mesh.V, mesh.F, scan_V, path)
+    if source is not None:
+        scan = source.scan(subject, expression)
+        log["scan"] = str(scan.path)
+        log["median_scan_gap_mm"] = check_against_scan(mesh.V, mesh.F, scan.V, path)
 
     log["has_uv"] = mesh.has_uv
     if not mesh.has_uv:

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from gpja.camera import Camera
+from gpja.data.units import check_head_units
 from gpja.errors import InputError
 from gpja.io import from_uint8, read_image, read_json, to_uint8, write_image
 from gpja.mesh import read_ply
@@ -29,9 +30,6 @@ from gpja.mesh import read_ply
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".jpg", ".png", ".jpeg")
-#: A head scan in millimetres spans roughly 150-500 mm; outside this range the
-#: units (or the Rt_scale transform) are almost certainly wrong.
-HEAD_EXTENT_MM = (80.0, 1500.0)
 
 
 @dataclass
@@ -105,20 +103,32 @@ def read_params(path: str | Path) -> dict:
     return params
 
 
+#: The per-view keys of a ``params.json``: ``{view}_K``, ... (``Camera.from_params`` reads all but ``valid``).
+VIEW_KEYS = ("K", "Rt", "distortion", "width", "height", "valid")
+
+
 def list_views(params: dict) -> list[str]:
-    """Every view named in ``params`` (by its ``_K`` key), in numeric then name order."""
-    names = {k[: -len("_K")] for k in params if k.endswith("_K")}
+    """Every view ``params`` describes (by any of its :data:`VIEW_KEYS`), in numeric then name order.
+
+    A view counts as described when any one of its keys is present, so a view that lacks one
+    (say ``{view}_K``) is still listed, and reading its camera names the missing key.
+    """
+    names = {k[: -len(suffix) - 1] for k in params for suffix in VIEW_KEYS
+             if k.endswith(f"_{suffix}") and len(k) > len(suffix) + 1}
     return sorted(names, key=lambda n: (0, int(n), "") if n.isdigit() else (1, 0, n))
 
 
 def read_cameras(params_path: str | Path, views: Sequence[str] | None = None) -> list[Camera]:
     """The valid cameras of an expression, as written in its ``params.json``.
 
+    Only ``{view}_valid: false`` drops a described view (with a warning); a view
+    missing any other key is an error, never silently left out.
+
     Args:
         views: view names to keep (in this order); None keeps every valid view.
     Raises:
-        InputError: a requested view is absent, a key is missing or malformed,
-        or no valid view remains.
+        InputError: a requested view is absent, a key is missing or malformed
+        (naming the file and the key), or no valid view remains.
     """
     params = read_params(params_path)
     available = list_views(params)
@@ -182,9 +192,15 @@ def load_view_image(camera: Camera, path: Path, cache_dir: Path | None = None) -
     """
     cached = None if cache_dir is None else Path(cache_dir) / f"{camera.name}.png"
     if cached is not None and cached.is_file() and cached.stat().st_mtime >= path.stat().st_mtime:
-        image = read_image(cached)
-        if image.shape[:2] == (camera.height, camera.width):
-            return image
+        try:
+            image = read_image(cached)
+        except InputError as err:  # a cache file cut off mid-write or overwritten: rebuild it
+            log.warning("%s; undistorting %s again", err, path)
+        else:
+            if image.shape[:2] == (camera.height, camera.width):
+                return image
+            log.warning("%s: cached image is %dx%d, the camera %dx%d; undistorting %s again", cached,
+                        image.shape[1], image.shape[0], camera.width, camera.height, path)
     image = read_image(path)
     if image.shape[:2] != (camera.height, camera.width):
         raise InputError(path, f"image is {image.shape[1]}x{image.shape[0]} but params.json says {camera.width}x{camera.height}")
@@ -208,15 +224,6 @@ def read_scan(path: str | Path, scale: float = 1.0, R: np.ndarray | None = None,
         V = V @ np.asarray(R).T + np.asarray(t)
     check_head_units(V, path)
     return Scan(V=V, F=F, path=path)
-
-
-def check_head_units(V: np.ndarray, source: str | Path) -> None:
-    """Raise :class:`InputError` if the points' extent is not that of a head in mm."""
-    extent = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
-    lo, hi = HEAD_EXTENT_MM
-    if not lo <= extent <= hi:
-        raise InputError(source, f"bounding-box diagonal is {extent:.4g}, expected {lo:g}-{hi:g} for a head in millimetres "
-                                 "(wrong units, or a missing/incorrect Rt_scale_dict transform?)")
 
 
 def resize_view(view: View, max_size: int) -> View:

@@ -33,12 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gpja.data.facescape import read_scan, scan_path
+from gpja.data.source import DataSource
+from gpja.data.units import check_units
 from gpja.errors import InputError
 from gpja.io import read_npz, write_npz
 from gpja.mesh import TexturedMesh, read_obj
-from gpja.metrics.geometry import closest_points, prepare_surface
-from gpja.register.pipeline import check_units
+from gpja.surface import interpolate, prepare_surface
 
 #: The expression the synthetic subject's template was fitted to (DESIGN.md).
 TEMPLATE_EXPRESSION = "3_mouth_stretch"
@@ -88,10 +88,9 @@ def material_coordinates(points: np.ndarray, scan: tuple[np.ndarray, np.ndarray]
         coords: (q, 3) float64 interpolated rest coordinates, mm.
         usable: (q,) bool, within the cap and not projected onto the scan's boundary.
     """
-    V, F = scan
-    surface = prepare_surface(V, F, 0.5 * (V.min(axis=0) + V.max(axis=0)))
-    cp = closest_points(surface, points)
-    coords = np.einsum("qk,qkc->qc", cp.barycentric, rest[F[cp.face]])
+    surface = prepare_surface(*scan)  # about the scan's bounding-box centre
+    cp = surface.closest(points)
+    coords = interpolate(surface, cp, rest)
     return coords, (cp.distance <= max_distance_mm) & ~cp.on_boundary
 
 
@@ -175,8 +174,9 @@ def correspondence_error_files(mesh_path: str | Path, template_path: str | Path,
     mesh = read_obj(mesh_path, load_texture=False)
     template = read_obj(template_path, load_texture=False)
     check_vertex_prefix(len(mesh.V), len(template.V), mesh_path)
-    scan_e = read_scan(scan_path(scans_root, subject, expression))
-    scan_t = scan_e if template_expression == expression else read_scan(scan_path(scans_root, subject, template_expression))
+    scans = DataSource(scans_root=scans_root)  # synthetic scans are in mm already: no Rt_scale
+    scan_e = scans.scan(subject, expression)
+    scan_t = scan_e if template_expression == expression else scans.scan(subject, template_expression)
     check_units(template, scan_t.V, scan_t.path)
     check_units(TexturedMesh(mesh.V, mesh.F), scan_e.V, scan_e.path)
     rest_e = read_rest_coords(ground_truth_root, subject, expression, len(scan_e.V))

@@ -43,9 +43,9 @@ cap are not hidden: the scan -> mesh direction uses every scan point with no
 cap, and the excluded fraction is reported so a method cannot gain by leaving
 the scan.
 
-Closest points use Open3D's ``RaycastingScene.compute_closest_points``
-(float32, coordinates shifted to the scan's centre first so float32 keeps
-~1e-5 mm resolution); distances are recomputed in float64.
+Closest points and the scan's rim follow :mod:`gpja.surface` (Open3D's
+float32 BVH about the scan's bounding-box centre, distances in float64; the
+rim after welding coincident vertices), the convention every module shares.
 """
 from __future__ import annotations
 
@@ -55,12 +55,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gpja.data.facescape import check_head_units, read_rt_scale, read_scan
-from gpja.data.synthetic.capture import build_scene, vertex_normals
+from gpja.data.source import read_scan_mm
+from gpja.data.units import check_head_units, check_units
 from gpja.errors import InputError
 from gpja.io import write_npz
-from gpja.mesh import TexturedMesh, read_obj, unique_edges
-from gpja.register.pipeline import check_units
+from gpja.mesh import TexturedMesh, read_obj
+from gpja.surface import ClosestPoints, bounding_box_centre, closest_points, prepare_surface, vertex_normals
 
 #: Points sampled on the registered mesh for the mesh -> scan direction: at
 #: 200K the sampling noise of a mean distance is ~0.2 % (well below the
@@ -73,132 +73,6 @@ DEFAULT_THRESHOLDS_MM = (0.5, 1.0)
 #: Distance cap of the coverage rule, mm (see the module docstring).
 DEFAULT_MAX_DISTANCE_MM = 5.0
 COVERAGE_RULES = ("boundary", "distance", "none")
-#: A barycentric weight at most this small puts the closest point on the
-#: opposite edge. Open3D clamps points in an edge's region exactly onto it;
-#: the margin absorbs its float32 rounding (1e-4 of a ~1 mm triangle is 0.1 um).
-BARYCENTRIC_ON_EDGE = 1e-4
-
-
-# --- closest points -----------------------------------------------------------------------
-
-@dataclass
-class Surface:
-    """A triangle mesh prepared for closest-point queries.
-
-    Attributes:
-        V: (n, 3) float64 positions, mm; F: (m, 3) int64 faces.
-        face_normals: (m, 3) float64 unit normals (zero for degenerate faces).
-        boundary_edge: (m, 3) bool, edge k of face f (corners k, k+1) is open
-            (faces joined through coincident vertices count as neighbours).
-        boundary_vertex: (n,) bool, the vertex (or a copy at its position) ends an open edge.
-        origin: (3,) float64 shift applied before the float32 conversion, mm.
-        scene: Open3D ``RaycastingScene`` of ``V - origin``.
-    """
-
-    V: np.ndarray
-    F: np.ndarray
-    face_normals: np.ndarray
-    boundary_edge: np.ndarray
-    boundary_vertex: np.ndarray
-    origin: np.ndarray
-    scene: object
-
-
-@dataclass
-class ClosestPoints:
-    """Closest surface points of q query points.
-
-    Attributes:
-        distance: (q,) float64 query-to-surface distance, mm.
-        face: (q,) int64 triangle the closest point lies on.
-        barycentric: (q, 3) float64 weights of the triangle's corners 0, 1, 2.
-        on_boundary: (q,) bool, the closest point lies on an open edge or vertex.
-    """
-
-    distance: np.ndarray
-    face: np.ndarray
-    barycentric: np.ndarray
-    on_boundary: np.ndarray
-
-
-def open_edges(F: np.ndarray) -> np.ndarray:
-    """(m, 3) bool: edge k of each face (corners k, k+1) belongs to no other face.
-
-    Edges shared by three or more faces (non-manifold) count as closed.
-    Args:
-        F: (m, 3) int64 faces.
-    """
-    if len(F) == 0:
-        return np.zeros((0, 3), dtype=bool)
-    _, face_edge = unique_edges(F)
-    return np.bincount(face_edge.ravel())[face_edge] == 1
-
-
-def coincident_vertex_ids(V: np.ndarray) -> np.ndarray:
-    """(n,) int64 id per vertex, shared by vertices at exactly the same position.
-
-    Scans saved with per-corner attributes repeat positions; without welding
-    every edge of such a file would look open and the whole scan would be rim.
-    """
-    rows = np.ascontiguousarray(V, dtype=np.float64).view(np.dtype((np.void, 24))).ravel()
-    _, ids = np.unique(rows, return_inverse=True)  # a 1-D unique of byte rows: ~2x faster than axis=0
-    return ids.ravel().astype(np.int64)
-
-
-def prepare_surface(V: np.ndarray, F: np.ndarray, origin: np.ndarray, find_boundary: bool = True) -> Surface:
-    """Build the closest-point structure of ``V (n, 3) mm, F (m, 3)`` about ``origin (3,)``.
-
-    With ``find_boundary=False`` (a surface whose boundary no rule looks at)
-    every edge is taken as closed, saving the edge search.
-    """
-    import open3d as o3d
-
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    edge_open = np.zeros(F.shape, dtype=bool)
-    boundary_vertex = np.zeros(len(V), dtype=bool)
-    if find_boundary:
-        ids = coincident_vertex_ids(V)
-        F_welded = ids[F]
-        edge_open = open_edges(F_welded)
-        on_rim = np.zeros(int(ids.max()) + 1, dtype=bool)
-        on_rim[F_welded[edge_open]] = True
-        on_rim[np.roll(F_welded, -1, axis=1)[edge_open]] = True
-        boundary_vertex = on_rim[ids]
-    scene = build_scene(V - origin, F)
-    # Open3D builds its BVH lazily on the first query; one point builds it here
-    # so that the query timings measure queries only.
-    scene.compute_closest_points(o3d.core.Tensor(np.zeros((1, 3), dtype=np.float32)))
-    normals = TexturedMesh(V, F).face_normals()
-    return Surface(V, F, normals, edge_open, boundary_vertex, np.asarray(origin, dtype=np.float64), scene)
-
-
-def closest_points(surface: Surface, P: np.ndarray) -> ClosestPoints:
-    """Closest points on ``surface`` of the query points ``P (q, 3)`` float64 mm."""
-    import open3d as o3d
-
-    query = o3d.core.Tensor(np.ascontiguousarray(P - surface.origin, dtype=np.float32))
-    ans = surface.scene.compute_closest_points(query)
-    face = ans["primitive_ids"].numpy().astype(np.int64)
-    uv = ans["primitive_uvs"].numpy().astype(np.float64)  # weights of corners 1 and 2
-    bary = np.column_stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]])
-    nearest = ans["points"].numpy().astype(np.float64) + surface.origin
-    distance = np.linalg.norm(P - nearest, axis=1)
-    return ClosestPoints(distance, face, bary, lies_on_boundary(surface, face, bary))
-
-
-def lies_on_boundary(surface: Surface, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    """(q,) bool: the point with barycentrics ``bary (q, 3)`` in ``face (q,)`` is on an open edge or vertex.
-
-    A point at a boundary vertex may be reported in a triangle that touches
-    the boundary only at that vertex, hence the separate vertex test.
-    """
-    on = np.zeros(len(face), dtype=bool)
-    corners = surface.F[face]
-    for k in range(3):
-        on |= surface.boundary_edge[face, k] & (bary[:, (k + 2) % 3] <= BARYCENTRIC_ON_EDGE)
-        on |= surface.boundary_vertex[corners[:, k]] & (bary[:, k] >= 1.0 - BARYCENTRIC_ON_EDGE)
-    return on
 
 
 # --- sampling, coverage, scores -----------------------------------------------------------
@@ -363,7 +237,7 @@ def evaluate_geometry(V: np.ndarray, F: np.ndarray, V_scan: np.ndarray, F_scan: 
     timings = {}
 
     t = time.perf_counter()
-    origin = 0.5 * (scan.V.min(axis=0) + scan.V.max(axis=0))
+    origin = bounding_box_centre(scan.V)  # one origin for both: the float32 queries share one frame
     scan_surface = prepare_surface(scan.V, scan.F, origin)
     mesh_surface = prepare_surface(mesh.V, mesh.F, origin, find_boundary=False)  # only the scan's rim matters
     timings["scene_build"] = time.perf_counter() - t
@@ -430,12 +304,9 @@ def evaluate_geometry_files(mesh_path: str | Path, scan_path: str | Path, *, rt_
     """
     mesh = read_obj(mesh_path, load_texture=False)
     check_head_units(mesh.V, mesh_path)
-    scale, R, t = 1.0, None, None
-    if rt_scale is not None:
-        if subject is None or expression is None:
-            raise InputError(rt_scale, "subject and expression are needed to look up the scan's Rt_scale entry")
-        scale, R, t = read_rt_scale(rt_scale, subject, expression)
-    scan = read_scan(scan_path, scale, R, t)
+    if rt_scale is not None and (subject is None or expression is None):
+        raise InputError(rt_scale, "subject and expression are needed to look up the scan's Rt_scale entry")
+    scan = read_scan_mm(scan_path, subject, expression, rt_scale)
     metrics = evaluate_geometry(mesh.V, mesh.F, scan.V, scan.F, mesh_source=mesh_path, scan_source=scan_path, **options)
     if errors_path is not None:
         metrics.errors.save(errors_path)

@@ -48,7 +48,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import torch
@@ -56,6 +56,9 @@ import torch
 from gpja.camera import Camera
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh
+
+if TYPE_CHECKING:
+    from gpja.data.source import DataSource
 
 log = logging.getLogger(__name__)
 
@@ -200,7 +203,7 @@ def check_photometric_mesh(mesh: TexturedMesh, source: str | Path) -> None:
 
 
 def render_with_texture(mesh: TexturedMesh, texture: np.ndarray, cameras: Sequence[Camera],
-                        sh: np.ndarray | torch.Tensor) -> np.ndarray:
+                        sh: np.ndarray | torch.Tensor, render=None) -> np.ndarray:
     """Render a textured mesh into every view ("color" pass, black background).
 
     Args:
@@ -208,17 +211,19 @@ def render_with_texture(mesh: TexturedMesh, texture: np.ndarray, cameras: Sequen
         texture: (T, T, 3) float albedo in [0, 1].
         cameras: B undistorted cameras of one image size (H, W).
         sh: (9, 3) SH lighting.
+        render: a backend's ``render_views`` (``gpja.render.renderer``); None = the CPU renderer.
     Returns:
         (B, H, W, 3) float32 in [0, 1] (shading above 1 is clipped).
     """
     from gpja.render import Topology, render_views
 
+    render = render or render_views
     topology = Topology(mesh.F, mesh.F_uv)
     with torch.no_grad():
-        out = render_views(torch.as_tensor(mesh.V, dtype=torch.float32), topology, cameras, passes=("color",),
-                           uv=torch.as_tensor(mesh.UV, dtype=torch.float32),
-                           texture=torch.from_numpy(_as_float32(texture)), sh=torch.from_numpy(_as_float32(sh)),
-                           background=0.0)
+        out = render(torch.as_tensor(mesh.V, dtype=torch.float32), topology, cameras, passes=("color",),
+                     uv=torch.as_tensor(mesh.UV, dtype=torch.float32),
+                     texture=torch.from_numpy(_as_float32(texture)), sh=torch.from_numpy(_as_float32(sh)),
+                     background=0.0)
         return out.dense("color").clamp(0.0, 1.0).numpy()
 
 
@@ -277,7 +282,7 @@ def evaluate_photometric(mesh: TexturedMesh, texture: np.ndarray, cameras: Seque
                          images: np.ndarray | torch.Tensor, coverage: np.ndarray | torch.Tensor,
                          sh: np.ndarray | torch.Tensor, out_dir: str | Path | None = None, *,
                          mask: np.ndarray | None = None, view_names: Sequence[str] | None = None,
-                         source: str | Path = "mesh") -> dict:
+                         source: str | Path = "mesh", render=None) -> dict:
     """PSNR, SSIM and LPIPS of a mesh rendered with the template texture (module docstring).
 
     Args:
@@ -286,12 +291,13 @@ def evaluate_photometric(mesh: TexturedMesh, texture: np.ndarray, cameras: Seque
         cameras: B undistorted cameras of one image size (H, W).
         images: (B, H, W, 3) float32 undistorted reference images in [0, 1].
         coverage: (B, H, W, 1) or (B, H, W) scan coverage in [0, 1] (``render_scan_targets``).
-        sh: (9, 3) SH lighting (``gpja.register.pipeline.lighting_for``).
+        sh: (9, 3) SH lighting (``gpja.data.ground_truth.lighting_for``).
         out_dir: if given, writes ``render/{view}.png`` (the raw render) and ``l1/{view}.png``
             (the error image) there.
         mask: optional (B, H, W) or (H, W) bool user mask, intersected with the coverage mask.
         view_names: B names for the per-view entries and files (default "0", "1", ...).
         source: the mesh's file, named in errors.
+        render: a backend's ``render_views`` (``gpja.render.renderer``); None = the CPU renderer.
     Returns:
         JSON-able dict: ``psnr`` (dB), ``ssim``, ``lpips`` (means over views with a non-empty mask),
         ``per_view`` (list of {view, psnr, ssim, lpips, mask_pixels[, render, error_image]}),
@@ -308,7 +314,7 @@ def evaluate_photometric(mesh: TexturedMesh, texture: np.ndarray, cameras: Seque
     if not masks.any():
         raise InputError("coverage", f"the head mask ({MASK_DEFINITION}) is empty in every view: "
                                      "the scan is not seen by these cameras")
-    renders = render_with_texture(mesh, texture, cameras, sh)
+    renders = render_with_texture(mesh, texture, cameras, sh, render)
 
     per_view = []
     for name, render, reference, view_mask in zip(names, renders, images, masks):
@@ -349,51 +355,50 @@ def write_view_images(out_dir: Path, names: Sequence[str], renders: np.ndarray, 
         entry.update(render=f"render/{name}.png", error_image=f"l1/{name}.png")
 
 
-def evaluate_photometric_files(mesh_path: str | Path, template_dir: str | Path, images_root: str | Path,
-                               scans_root: str | Path, subject: str, expression: str,
-                               targets_path: str | Path | None, ground_truth_root: str | Path | None = None,
-                               views: Sequence[str] | None = None, rt_scale: str | Path | None = None,
-                               cache_dir: str | Path | None = None, max_image_size: int | None = None,
-                               out_dir: str | Path | None = None, texture_path: str | Path | None = None) -> dict:
+def evaluate_photometric_files(mesh_path: str | Path, template_dir: str | Path, source: "DataSource",
+                               subject: str, expression: str, targets_path: str | Path | None,
+                               ground_truth_root: str | Path | None = None, out_dir: str | Path | None = None,
+                               texture_path: str | Path | None = None, render=None) -> dict:
     """:func:`evaluate_photometric` of a registered mesh file against one expression's data.
 
     Args:
         mesh_path: the method's output OBJ (template UVs).
         template_dir: the subject's template folder (its ``texture.png`` is the shared texture).
-        images_root, scans_root, views, rt_scale, cache_dir, max_image_size: as in
-            ``gpja.data.facescape.load_expression`` (``rt_scale`` is ``Rt_scale_dict.json``).
+        source: the dataset (images, scans, ``Rt_scale_dict.json``, views, image cache and size).
         targets_path: the expression's scan-targets ``.npz`` (reused, or rendered and written);
             None renders the coverage without caching.
         ground_truth_root: synthetic ground truth (for its SH lighting); None = uniform light.
         out_dir: where the per-view renders and error images go (None: not written).
         texture_path: the texture to render with; None = the template's shared ``texture.png``
             (an imported mesh with its own UV layout brings its own texture).
+        render: a backend's ``render_views`` (``gpja.render.renderer``) for the mesh's renders and,
+            without a valid cache, the scan targets; None = the CPU renderer.
     Returns:
         the dict of :func:`evaluate_photometric` plus ``mesh``, ``subject``, ``expression``.
     Raises:
         InputError: missing/corrupt files, a mesh without UVs, NaN vertices, an empty mesh or
             scan, a mesh and scan in different units, views of different sizes.
     """
-    from gpja.data.facescape import expression_dir, load_expression, scan_path
+    from gpja.data.facescape import expression_dir
+    from gpja.data.ground_truth import lighting_for
+    from gpja.data.units import check_units
     from gpja.io import read_image
     from gpja.mesh import read_obj
-    from gpja.register.pipeline import check_units, lighting_for
     from gpja.render import render_scan_targets
 
     mesh = read_obj(mesh_path, load_texture=False)
     check_photometric_mesh(mesh, mesh_path)
     texture = read_image(Path(texture_path) if texture_path is not None else Path(template_dir) / "texture.png")
-    data = load_expression(images_root, subject, expression, views=views, scans_root=scans_root,
-                           rt_scale_path=rt_scale, cache_dir=cache_dir, max_image_size=max_image_size)
+    data = source.load(subject, expression)
     check_units(mesh, data.scan.V, mesh_path)
     sizes = {(v.camera.width, v.camera.height) for v in data.views}
     if len(sizes) != 1:
-        raise InputError(expression_dir(images_root, subject, expression),
+        raise InputError(expression_dir(source.images_root, subject, expression),
                          f"views differ in size {sorted(sizes)}; set max_image_size so they share one")
-    targets = render_scan_targets(data.scan.V, data.scan.F, data.cameras, cache_path=targets_path)
+    targets = render_scan_targets(data.scan.V, data.scan.F, data.cameras, cache_path=targets_path, render=render)
     if float(targets["coverage"].max()) < COVERAGE_THRESHOLD:
-        raise InputError(scan_path(scans_root, subject, expression), "the scan covers no pixel of any selected view")
+        raise InputError(data.scan.path, "the scan covers no pixel of any selected view")
     sh = lighting_for(subject, expression, ground_truth_root)
     result = evaluate_photometric(mesh, texture, data.cameras, np.stack(data.images), targets["coverage"], sh,
-                                  out_dir, view_names=[v.name for v in data.views], source=mesh_path)
+                                  out_dir, view_names=[v.name for v in data.views], source=mesh_path, render=render)
     return {"mesh": str(mesh_path), "subject": str(subject), "expression": expression, **result}

@@ -30,7 +30,7 @@ from typing import Sequence
 import torch
 
 from gpja.camera import Camera
-from gpja.render import RenderOutput, Topology, image_l1
+from gpja.render import RenderOutput, Topology, image_l1, render_views
 
 CONSTRAINTS = ("color", "depth", "normal")
 #: Cost of a scan pixel the template does not cover, in the depth constraint's units (mm).
@@ -151,11 +151,10 @@ def render_constraint(constraint: str, V: torch.Tensor, topology: Topology, targ
                       render=None, cull_backfaces: bool = True, color_pool: int = 1) -> tuple[torch.Tensor, RenderOutput]:
     """Render what one constraint needs and return its loss and the render.
 
+    ``render``: the backend's ``render_views`` (``gpja.render.renderer``); None = the CPU renderer.
     ``cull_backfaces``: the template is a closed surface, so back faces are never
     visible and skipping them halves the rasterisation (the CPU backend).
     """
-    from gpja.render import render_views
-
     render = render or render_views
     out = render(V, topology, targets.cameras, passes_for(constraint, switches), uv=uv, texture=texture,
                  mask_texture=mask_texture, sh=targets.sh, cull_backfaces=cull_backfaces)

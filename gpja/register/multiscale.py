@@ -40,6 +40,7 @@ from gpja.register.hra import ExpressionTargets, Switches, render_constraint
 from gpja.register.largesteps import LargeStepsParametrization
 from gpja.register.remesh import refine_by_factor
 from gpja.render import Topology
+from gpja.settings import from_section
 
 
 class RegistrationDiverged(GpjaError):
@@ -73,14 +74,27 @@ class Schedule:
     color_pool: tuple[int, ...] | None = None
     warmup_iterations: int = 0
 
+    #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
+    from_config = classmethod(from_section)
+
     def __post_init__(self) -> None:
         if len(self.lambdas) != len(self.iterations) or not self.lambdas:
-            raise ValueError("lambdas and iterations need one entry per level")
+            raise ValueError(f"lambdas ({len(self.lambdas)}) and iterations ({len(self.iterations)}) need one entry "
+                             "per level, at least one level")
+        if any(int(n) < 1 for n in self.iterations):
+            raise ValueError(f"iterations must be >= 1 at every level, got {list(self.iterations)}")
+        if any(float(lam) < 0 for lam in self.lambdas):
+            raise ValueError(f"lambdas must be >= 0, got {list(self.lambdas)}")
         if self.color_pool is not None and (len(self.color_pool) != len(self.lambdas)
                                             or any(int(p) < 1 for p in self.color_pool)):
-            raise ValueError(f"color_pool needs one entry >= 1 per level, got {self.color_pool}")
+            raise ValueError(f"color_pool needs one entry >= 1 per level ({len(self.lambdas)}), "
+                             f"got {list(self.color_pool)}")
         if int(self.warmup_iterations) < 0:
             raise ValueError(f"warmup_iterations must be >= 0, got {self.warmup_iterations}")
+        if not float(self.refine_factor) > 1.0:
+            raise ValueError(f"refine_factor must be > 1, got {self.refine_factor}")
+        if not float(self.lr_fraction) > 0.0:
+            raise ValueError(f"lr_fraction must be > 0, got {self.lr_fraction}")
         if not 0.0 < self.lr_decay <= 1.0:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
 
@@ -121,6 +135,9 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         targets: reference images, scan targets, cameras and lighting.
         switches: which constraints (and the mouth mask) to use.
         texture: (T, T, 3) albedo; mask_texture: (T', T', 1) mouth mask (1 = use, 0 = mouth interior).
+        render: the backend's ``render_views`` (``gpja.render.renderer``) for every iteration's render;
+            None = the CPU renderer (``gpja.render.render_views``).
+        cull_backfaces: skip back faces (the template is closed: they are never visible).
     Returns:
         The registered mesh (last level's topology, same UV parametrisation) and its log: one entry
         per level, preceded by the warm-up's (``"stage": "warmup"``) when there is one.
@@ -156,6 +173,7 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
 
     ``name`` labels progress lines and errors ("level 2/3", "warm-up"). The first step is
     ``schedule.lr_fraction`` x this mesh's mean edge length (mm), decaying as the schedule says.
+    ``render``: as in :func:`optimise` (None = the CPU renderer).
     """
     start = time.perf_counter()
     rotation = switches.rotation()

@@ -2,9 +2,9 @@
 
 The reference file (``tests/data/ci_reference_metrics.json``, written from a real
 CI run by ``gpja check-regression --write-reference``) holds, per (subject,
-method, expression), the headline scores of :func:`gpja.report.tables.flat_metrics`.
-Every metric of every entry is compared with the run's
-``{metrics}/{subject}/{method}/metrics/{expression}.json``; a metric fails when it
+method, expression), the headline scores of :func:`gpja.report.runs.flat_metrics`.
+Every metric of every entry is compared with the run's metrics JSON
+(:meth:`gpja.results.Layout.metrics` under ``--metrics``); a metric fails when it
 is *worse* than the reference by more than its tolerance. Better is never a
 failure.
 
@@ -20,12 +20,8 @@ from pathlib import Path
 
 from gpja.errors import InputError
 from gpja.io import read_json, write_json
-from gpja.report.tables import (
-    check_metrics_record,
-    flat_metrics,
-    metric_family,
-    metrics_path,
-)
+from gpja.report.runs import check_metrics_record, flat_metrics, metric_family
+from gpja.results import Layout
 
 REFERENCE_FORMAT = "gpja-ci-reference/1"
 HIGHER = "higher"  # a larger value is worse
@@ -149,7 +145,7 @@ def check_entry(metrics_root: Path, subject: str, method: str, expression: str, 
                 tolerances: dict) -> tuple[list[Failure], int]:
     """Failures and the number of metrics compared for one (subject, method, expression)."""
     where = f"{subject}/{method}/{expression}"
-    path = metrics_path(metrics_root, subject, method, expression)
+    path = Layout(metrics_root).metrics(subject, method, expression)
     if not path.is_file():
         return [Failure(where, None, f"metrics file missing: {path}")], 0
     try:
@@ -189,14 +185,10 @@ def check_regression(metrics_root: str | Path, reference_path: str | Path,
 
 def discover_metrics(metrics_root: str | Path, subjects=None, methods=None,
                      expressions=None) -> list[tuple[str, str, str]]:
-    """``(subject, method, expression)`` of every ``{root}/{subject}/{method}/metrics/{expression}.json``,
+    """``(subject, method, expression)`` of every metrics JSON under ``metrics_root`` (``results/{dataset}``),
     optionally restricted to the given subjects, methods and expressions."""
-    found = []
-    for path in sorted(Path(metrics_root).glob("*/*/metrics/*.json")):
-        key = (path.parts[-4], path.parts[-3], path.stem)
-        if all(allowed is None or value in allowed for value, allowed in zip(key, (subjects, methods, expressions))):
-            found.append(key)
-    return found
+    return [key for key in Layout(metrics_root).find_metrics()
+            if all(allowed is None or value in allowed for value, allowed in zip(key, (subjects, methods, expressions)))]
 
 
 def write_reference(metrics_root: str | Path, reference_path: str | Path, subjects=None, methods=None,
@@ -204,10 +196,10 @@ def write_reference(metrics_root: str | Path, reference_path: str | Path, subjec
     """Write the reference file from a run's metrics JSONs; return the number of entries written."""
     keys = discover_metrics(metrics_root, subjects, methods, expressions)
     if not keys:
-        raise InputError(metrics_root, "no metrics JSON found at {subject}/{method}/metrics/{expression}.json")
+        raise InputError(metrics_root, f"no metrics JSON found at {Layout(metrics_root).metrics('{subject}', '{method}', '{expression}')}")
     entries: dict = {}
     for subject, method, expression in keys:
-        values = run_metrics(metrics_path(metrics_root, subject, method, expression))
+        values = run_metrics(Layout(metrics_root).metrics(subject, method, expression))
         entries.setdefault(subject, {}).setdefault(method, {})[expression] = dict(sorted(values.items()))
     write_json(reference_path, {"format": REFERENCE_FORMAT, "source": str(metrics_root),
                                 "note": "headline metrics of a CI run; tolerances: gpja/report/regression.py",

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from gpja.baselines.external import import_mesh
+from gpja.data.source import DataSource
 from gpja.errors import InputError
 from gpja.io import write_image
 from gpja.mesh import TexturedMesh, read_obj, write_obj, write_ply
@@ -109,13 +110,14 @@ def test_shared_texture_is_referenced_relative(external):
 
 def test_scan_check_accepts_a_matching_mesh_and_refuses_a_far_one(external):
     m = external["mesh"]
-    scan = external["root"] / "scans" / f"{EXPRESSION}.ply"
+    source = DataSource(scans_root=external["root"] / "scans")
+    scan = source.scan_file(SUBJECT, EXPRESSION)
     write_ply(scan, m.V, m.F)
-    log = import_mesh(external["pattern"], SUBJECT, EXPRESSION, external["out"], scan=scan)
-    assert log["median_scan_gap_mm"] < 1e-6
+    log = import_mesh(external["pattern"], SUBJECT, EXPRESSION, external["out"], source=source)
+    assert log["median_scan_gap_mm"] < 1e-6 and log["scan"] == str(scan)
     write_ply(scan, m.V + [0.0, 0.0, 300.0], m.F)
     with pytest.raises(InputError, match="median .* mm from the scan"):
-        import_mesh(external["pattern"], SUBJECT, EXPRESSION, external["out"].with_name("x.obj"), scan=scan)
+        import_mesh(external["pattern"], SUBJECT, EXPRESSION, external["out"].with_name("x.obj"), source=source)
 
 
 # --- bad input --------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Tests of gpja.baselines.nicp: optimal-step NICP on a bumped ellipsoid, file I/O, bad input."""
+"""Tests of gpja.baselines.nicp: optimal-step NICP on a bumped ellipsoid, the file driver, bad input."""
 from __future__ import annotations
 
 import json
@@ -7,32 +7,25 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 import trimesh
 
-from gpja.baselines.nicp import (
-    AffineSolver,
-    ClosestPoints,
-    NicpSettings,
-    NicpStep,
-    boundary_flags,
-    nicp,
-    read_landmarks,
-    read_template_landmarks,
-    run_nicp_files,
-    settings_from_config,
-    similarity_transform,
-    stiffness_matrix,
-)
+from gpja.baselines.landmarks import read_template_landmarks
+from gpja.baselines.nicp import NicpSettings, NicpStep, nicp, run_baseline
+from gpja.data.source import DataSource
 from gpja.errors import InputError
 from gpja.io import write_image
+from gpja.methods import method
 from gpja.mesh import TexturedMesh, read_obj, write_obj, write_ply
-from tests.tolerances import EXACT_F64, NICP_BACK_OF_HEAD_MM, NICP_MIN_DISTANCE_REDUCTION
+from gpja.surface import prepare_surface
+from tests.tolerances import NICP_BACK_OF_HEAD_MM, NICP_MIN_DISTANCE_REDUCTION
 
 AXES_MM = np.array([80.0, 100.0, 90.0])
 SUBJECT, EXPRESSION, TEMPLATE_EXPRESSION = "S9", "2_smile", "3_mouth_stretch"
 #: a short schedule for the file-level tests, which check plumbing, not accuracy
 QUICK = NicpSettings(steps=(NicpStep(1.0, 3.0, 2), NicpStep(0.2, 1.0, 2)), rigid_iterations=2)
+#: the config's ``baselines.nicp`` section with that schedule (its landmark pattern is the test's)
+QUICK_SECTION = {"enabled": True, "template_landmarks": None,
+                 "settings": {"steps": [[1.0, 3.0, 2], [0.2, 1.0, 2]], "rigid_iterations": 2}}
 
 
 def ellipsoid(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
@@ -83,9 +76,19 @@ def front_landmarks(V: np.ndarray, count: int = 8) -> np.ndarray:
     return np.argmax(d @ (dirs / np.linalg.norm(dirs, axis=1, keepdims=True)).T, axis=0)
 
 
+def distances_to(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(k,) distances of the points ``P (k, 3)`` to the mesh surface ``V, F``, mm."""
+    return prepare_surface(V, F, find_boundary=False).closest(P).distance
+
+
 def scan_to_mesh_mean(V_scan: np.ndarray, mesh_V: np.ndarray, mesh_F: np.ndarray) -> float:
     """Mean distance from scan vertices to a mesh surface, mm."""
-    return float(np.linalg.norm(ClosestPoints(mesh_V, mesh_F).query(V_scan)["points"] - V_scan, axis=1).mean())
+    return float(distances_to(V_scan, mesh_V, mesh_F).mean())
+
+
+def unweld(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The same surface with every face on its own three vertex copies (a per-corner PLY)."""
+    return V[F].reshape(-1, 3), np.arange(3 * len(F)).reshape(-1, 3)
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +124,7 @@ def test_nicp_does_not_drag_the_uncovered_back_onto_the_rim(bumped_case, registe
     c = bumped_case
     mesh, _ = registered
     back = c["template"].V[:, 2] < -60.0
-    gap = np.linalg.norm(ClosestPoints(c["V_full"], c["F_full"]).query(mesh.V[back])["points"] - mesh.V[back], axis=1)
+    gap = distances_to(mesh.V[back], c["V_full"], c["F_full"])
     assert gap.max() < NICP_BACK_OF_HEAD_MM, gap.max()
 
 
@@ -150,38 +153,19 @@ def test_identity_when_template_equals_scan():
     assert log["rigid"]["landmark_error_mm"] < 1e-9
 
 
-def test_similarity_transform_recovers_a_known_similarity():
-    P = np.random.default_rng(0).normal(size=(20, 3)) * 50
-    th = 0.3
-    R = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
-    Q = 1.2 * P @ R.T + [1.0, 2.0, 3.0]
-    s, R2, t2 = similarity_transform(P, Q, allow_scale=True)
-    assert abs(s - 1.2) < EXACT_F64 and np.abs(R2 - R).max() < EXACT_F64 and np.abs(t2 - [1, 2, 3]).max() < 1e-7
-    s, _, _ = similarity_transform(P, Q, allow_scale=False)
-    assert s == 1.0
+def test_correspondences_survive_an_unwelded_scan(bumped_case):
+    """A scan saved with per-corner vertices has the same rim once welded: NICP matches as on the welded scan.
 
-
-def test_boundary_flags_of_an_open_mesh():
-    V, F = crop_back(*ellipsoid(2), z_min_mm=0.0)
-    edge_open, vertex_open = boundary_flags(F, len(V))
-    mesh = trimesh.Trimesh(V, F, process=False)
-    rim = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
-    assert len(rim) > 0 and edge_open.sum() == len(rim)
-    assert set(np.flatnonzero(vertex_open)) == set(rim.ravel())
-
-
-def test_preconditioned_cg_matches_a_direct_solve():
-    V, F = ellipsoid(2)
-    n = len(V)
-    K = stiffness_matrix(F, n, 1.0)
-    H1 = (0.5 * K + sp.eye(4 * n)).tocsr()
-    H2 = (0.25 * K + sp.diags(np.linspace(0.5, 1.5, 4 * n))).tocsr()  # other stiffness and weights
-    B = np.random.default_rng(0).normal(size=(4 * n, 3))
-    solver = AffineSolver(rtol=1e-12, max_cg=200)
-    solver.solve(H1, B, np.zeros_like(B), stiffness=1.0)
-    X = solver.solve(H2, B, np.zeros_like(B), stiffness=0.9)
-    assert solver.stats["factorizations"] == 1 and solver.stats["cg_solves"] == 1
-    assert np.abs(H2 @ X - B).max() < 1e-9 * np.abs(B).max()
+    Without welding every edge of such a scan is open, so boundary rejection threw every correspondence away.
+    """
+    c = bumped_case
+    V_u, F_u = unweld(c["V_scan"], c["F_scan"])
+    welded = nicp(c["template"], c["V_scan"], c["F_scan"], c["lm_template"], c["lm_scan"], QUICK, progress=lambda s: None)
+    split = nicp(c["template"], V_u, F_u, c["lm_template"], c["lm_scan"], QUICK, progress=lambda s: None)
+    matched = [step["matched_fraction"] for step in split[1]["steps"]]
+    assert min(matched) > 0.5, matched
+    assert matched == [step["matched_fraction"] for step in welded[1]["steps"]]
+    np.testing.assert_array_equal(split[0].V, welded[0].V)
 
 
 # --- files ------------------------------------------------------------------------------------
@@ -207,15 +191,14 @@ def nicp_files(tmp_path: Path) -> dict:
             "pattern": str(gt / "{subject}" / "{expression}.npz"), "out": tmp_path / "results" / SUBJECT / "nicp"}
 
 
-def run(files: dict, **kw) -> dict:
-    args = dict(template_dir=files["template_dir"], scans_root=files["scans"], subject=SUBJECT,
-                expression=EXPRESSION, out_obj=files["out"] / f"{EXPRESSION}.obj", landmarks=files["pattern"],
-                settings=QUICK, progress=lambda s: None)
-    args.update(kw)
-    return run_nicp_files(**args)
+def run(files: dict, progress=lambda s: None, **section) -> dict:
+    """:func:`run_baseline` on the fixture's files, with ``QUICK_SECTION`` updated by ``section``."""
+    section = {**QUICK_SECTION, "landmarks": files["pattern"], **section}
+    return run_baseline(files["template_dir"], DataSource(scans_root=files["scans"]), SUBJECT, EXPRESSION,
+                        files["out"] / f"{EXPRESSION}.obj", section, TEMPLATE_EXPRESSION, progress)
 
 
-def test_run_nicp_files_writes_obj_and_log(nicp_files):
+def test_run_baseline_writes_obj_and_log(nicp_files):
     lines = []
     log = run(nicp_files, progress=lines.append)
     out = nicp_files["out"] / f"{EXPRESSION}.obj"
@@ -230,7 +213,7 @@ def test_run_nicp_files_writes_obj_and_log(nicp_files):
     assert len(lines) == 1 + len(QUICK.steps)
 
 
-def test_run_nicp_files_accepts_template_vertex_indices(nicp_files, tmp_path):
+def test_run_baseline_accepts_template_vertex_indices(nicp_files, tmp_path):
     idx_file = tmp_path / "tu_landmarks.txt"
     idx_file.write_text("\n".join(str(i) for i in nicp_files["lm"]) + "\n")
     log = run(nicp_files, template_landmarks=str(idx_file))
@@ -238,15 +221,17 @@ def test_run_nicp_files_accepts_template_vertex_indices(nicp_files, tmp_path):
     assert np.array_equal(read_template_landmarks(idx_file), nicp_files["lm"])
 
 
-def test_landmark_file_formats_agree(tmp_path):
-    P = np.random.default_rng(0).normal(size=(68, 3)) * 40
-    np.savez(tmp_path / "a.npz", landmarks=P)
-    (tmp_path / "a.json").write_text(json.dumps(P.tolist()))
-    (tmp_path / "b.json").write_text(json.dumps({"landmarks": P.tolist()}))
-    np.savetxt(tmp_path / "a.txt", P, fmt="%.17g")
-    np.savetxt(tmp_path / "a.csv", P, fmt="%.17g", delimiter=",")
-    for name in ("a.npz", "a.json", "b.json", "a.txt", "a.csv"):
-        assert np.array_equal(read_landmarks(tmp_path / name, count=68), P), name
+def test_the_registry_runs_this_entry_point():
+    assert method("nicp").run_function() is run_baseline
+
+
+def test_bad_sections_are_named(nicp_files):
+    with pytest.raises(InputError, match="baselines.nicp: unknown key.*landmark"):
+        run(nicp_files, landmark="x")
+    with pytest.raises(InputError, match="baselines.nicp.landmarks: NICP needs"):
+        run(nicp_files, landmarks=None)
+    with pytest.raises(InputError, match="baselines.nicp.settings: .*stifness"):
+        run(nicp_files, settings={"stifness": 1})
 
 
 def test_missing_landmark_file_is_named(nicp_files):
@@ -316,25 +301,14 @@ def test_settings_are_logged(registered):
 def test_settings_from_config():
     cfg = {"steps": [[0.1, 1, 3], {"stiffness": 0.05, "landmark_weight": 0.5, "max_iterations": 4}],
            "max_distance_mm": 5}
-    s = settings_from_config(cfg)
+    s = NicpSettings.from_config(cfg)
     assert s.steps == (NicpStep(0.1, 1.0, 3), NicpStep(0.05, 0.5, 4)) and s.max_distance_mm == 5
-    assert settings_from_config(None) == NicpSettings()
-    with pytest.raises(InputError, match="config: unknown NICP setting.*stifness"):
-        settings_from_config({"stifness": 1})
-    with pytest.raises(InputError, match="config: NICP step 0"):
-        settings_from_config({"steps": [[0.1, 1]]})
-    with pytest.raises(InputError, match="config: NICP step 1: stiffness must be > 0"):
-        settings_from_config({"steps": [[0.1, 1, 3], [0, 1, 3]]})
-
-
-@pytest.mark.parametrize("name, content, match", [
-    ("lm.npz", b"PK\x03\x04 not really a zip", "corrupt or unreadable landmark file"),
-    ("lm.txt", b"1 2 3\n4 5\n", "corrupt or unreadable landmark file"),
-    ("lm.json", b'{"points": []}', "expected a list, or an object"),
-    ("lm.txt", b"1 2\n3 4\n5 6\n", r"must be an \(L, 3\) array"),
-])
-def test_corrupt_landmark_files_are_named(tmp_path, name, content, match):
-    path = tmp_path / name
-    path.write_bytes(content)
-    with pytest.raises(InputError, match=rf"{name}: .*{match}"):
-        read_landmarks(path)
+    assert NicpSettings.from_config(None) == NicpSettings()
+    with pytest.raises(InputError, match=r"config: unknown key\(s\) stifness; known: steps"):
+        NicpSettings.from_config({"stifness": 1})
+    with pytest.raises(InputError, match=r"config: steps\[0\]: expected \[stiffness, landmark_weight, max_iterations\]"):
+        NicpSettings.from_config({"steps": [[0.1, 1]]})
+    with pytest.raises(InputError, match=r"config: steps\[1\]: stiffness must be > 0"):
+        NicpSettings.from_config({"steps": [[0.1, 1, 3], [0, 1, 3]]})
+    with pytest.raises(InputError, match="config: NICP needs at least one step"):
+        NicpSettings.from_config({"steps": []})

@@ -76,6 +76,17 @@ def test_undistorted_images_are_cached(facescape_root, tmp_path):
         np.testing.assert_array_equal(a.image, c.image)
 
 
+def test_corrupt_cached_image_is_rebuilt(facescape_root, tmp_path, caplog):
+    first = load(facescape_root, cache_dir=tmp_path / "cache")
+    cached = tmp_path / "cache" / SUBJECT / EXPRESSION / "0.png"
+    cached.write_bytes(cached.read_bytes()[:100])  # cut off mid-write
+    with caplog.at_level("WARNING"):
+        again = load(facescape_root, cache_dir=tmp_path / "cache")
+    assert "0.png" in caplog.text and "undistorting" in caplog.text
+    np.testing.assert_array_equal(first.views[0].image, again.views[0].image)
+    assert load(facescape_root, cache_dir=tmp_path / "cache").views[0].image.shape == first.views[0].image.shape
+
+
 def test_max_image_size_downsamples_with_intrinsics(facescape_root):
     data = load(facescape_root, max_image_size=48)
     view = data.views[0]
@@ -157,3 +168,28 @@ def test_expression_number():
     assert expression_number("13_lip_funneler") == 13
     with pytest.raises(InputError, match="naming"):
         expression_number("smile")
+
+
+@pytest.mark.parametrize("key", ["K", "distortion", "width", "height", "valid"])
+def test_a_described_view_missing_a_key_is_an_error_not_dropped(facescape_root, key):
+    """Only ``{view}_valid: false`` may drop a view; a view missing ``{view}_K`` (or any key) names file and key."""
+    from gpja.data.facescape import list_views, read_cameras
+
+    path = facescape_root["folder"] / "params.json"
+    params = json.loads(path.read_text())
+    del params[f"1_{key}"]
+    path.write_text(json.dumps(params))
+    assert list_views(params) == ["0", "1", "2", "9"]
+    with pytest.raises(InputError, match=rf"params\.json: view '1': key '1_{key}' missing"):
+        read_cameras(path)
+    with pytest.raises(InputError, match=rf"params\.json: view '1': key '1_{key}' missing"):
+        load(facescape_root)
+
+
+def test_a_view_marked_invalid_may_lack_its_other_keys(facescape_root):
+    path = facescape_root["folder"] / "params.json"
+    params = json.loads(path.read_text())
+    for key in ("K", "Rt", "distortion", "width", "height"):
+        del params[f"9_{key}"]  # only 9_valid: false is left
+    path.write_text(json.dumps(params))
+    assert [v.name for v in load(facescape_root).views] == ["0", "1", "2"]

@@ -24,3 +24,27 @@ def test_summary_line_names_every_headline_score():
                  "LPIPS 0.2000", "corr. mean 1.500 mm"):
         assert text in line
     assert "PSNR" not in summary_line({**result, "photometric": None, "correspondence": None})
+
+
+def test_a_metric_family_is_one_function_plus_one_registry_entry(monkeypatch, tmp_path):
+    """Every family of METRICS is scored into its key of the JSON, in order, with its wall time."""
+    from gpja.data.source import DataSource
+    from gpja.metrics import evaluate
+
+    seen = []
+
+    def toy(request, result):
+        seen.append((request.subject, request.expression, request.method, request.settings.samples))
+        result["toy_note"] = "a family may add top-level keys"
+        return {"value": 1.5}
+
+    monkeypatch.setattr(evaluate, "METRICS", {"toy": toy, "not_applicable": lambda request, result: None})
+    result = evaluate.evaluate_expression(
+        mesh_path=tmp_path / "m.obj", subject="S01", expression="1_neutral", method="gpja",
+        template_dir=tmp_path, source=DataSource(), targets_path=None, out_dir=tmp_path,
+        settings=MetricSettings(samples=7))
+    assert seen == [("S01", "1_neutral", "gpja", 7)]
+    assert result["toy"] == {"value": 1.5} and result["toy_note"].startswith("a family")
+    assert result["not_applicable"] is None
+    assert set(result["seconds"]) == {"toy"}  # only families that scored are timed
+    assert list(result)[:4] == ["subject", "expression", "method", "mesh"]

@@ -8,14 +8,7 @@ from scipy.spatial.transform import Rotation
 from gpja.errors import InputError
 from gpja.io import read_npz
 from gpja.mesh import TexturedMesh, write_obj, write_ply
-from gpja.metrics.geometry import (
-    closest_points,
-    evaluate_geometry,
-    evaluate_geometry_files,
-    open_edges,
-    prepare_surface,
-    sample_surface,
-)
+from gpja.metrics.geometry import evaluate_geometry, evaluate_geometry_files, sample_surface
 from tests.tolerances import (
     AREA_FRACTION_SAMPLED,
     CLOSEST_POINT_F32_MM,
@@ -46,35 +39,12 @@ def face_areas(V, F):
 
 # --- building blocks ----------------------------------------------------------------------
 
-def test_open_edges_analytic():
-    # two triangles sharing edge 0-2: every other edge is open
-    np.testing.assert_array_equal(open_edges(np.array([[0, 1, 2], [0, 2, 3]])),
-                                  [[True, True, False], [False, True, True]])
-    V, F = sphere(subdivisions=2)
-    assert not open_edges(F).any()  # closed surface
-
-
 def test_unwelded_scan_has_no_rim():
+    """A closed scan saved with per-corner vertices is welded before its rim is looked for (gpja.surface)."""
     V, F = sphere(subdivisions=3)
     V_split, F_split = V[F].reshape(-1, 3), np.arange(3 * len(F)).reshape(-1, 3)  # every face its own corners
-    surface = prepare_surface(V_split, F_split, np.zeros(3))
-    assert not surface.boundary_edge.any() and not surface.boundary_vertex.any()
     m = evaluate_geometry(V, F, V_split, F_split, samples=2000)
     assert m.excluded_fraction == 0.0 and m.chamfer_l1_mm < CLOSEST_POINT_F32_MM
-
-
-def test_closest_point_on_open_edge_and_interior():
-    V = np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 0]])
-    F = np.array([[0, 1, 2], [1, 3, 2]])
-    surface = prepare_surface(V, F, V.mean(axis=0))
-    P = np.array([[2.0, 2, 3],      # above the interior: foot inside face 0
-                  [5.0, -4, 1],     # beyond the open edge 0-1: foot on it
-                  [5.0, 5, 2],      # above the shared (closed) diagonal
-                  [-3.0, -3, 0]])   # beyond corner 0 (a boundary vertex)
-    cp = closest_points(surface, P)
-    np.testing.assert_allclose(cp.distance, [3.0, np.hypot(4, 1), 2.0, np.hypot(3, 3)], atol=CLOSEST_POINT_F32_MM)
-    np.testing.assert_array_equal(cp.on_boundary, [False, True, False, True])
-    np.testing.assert_allclose(cp.barycentric.sum(axis=1), 1.0, atol=1e-6)
 
 
 def test_sample_surface_is_uniform_by_area_and_seeded():

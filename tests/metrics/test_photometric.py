@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from skimage.metrics import structural_similarity
 
+from gpja.data.source import DataSource
 from gpja.errors import InputError
 from gpja.io import read_image, write_image
 from gpja.mesh import TexturedMesh, write_obj
@@ -148,14 +149,16 @@ def files(facescape_root, tmp_path):
     """Arguments of evaluate_photometric_files for the conftest expression (a 100 mm sphere scan)."""
     template = tmp_path / "template"
     write_image(template / "texture.png", smooth_texture())
-    return {"template_dir": template, "images_root": facescape_root["images"], "scans_root": facescape_root["scans"],
+    return {"template_dir": template,
+            "source": DataSource(images_root=facescape_root["images"], scans_root=facescape_root["scans"]),
             "subject": SUBJECT, "expression": EXPRESSION, "targets_path": tmp_path / "targets.npz"}
 
 
 def test_files_entry_point(files, tmp_path):
     mesh_path = tmp_path / "registered.obj"
     write_obj(mesh_path, textured_sphere(100.0), texture_name="texture.png")
-    result = evaluate_photometric_files(mesh_path, **files, views=["0", "1"], out_dir=tmp_path / "out")
+    two_views = {**files, "source": replace(files["source"], views=("0", "1"))}
+    result = evaluate_photometric_files(mesh_path, **two_views, out_dir=tmp_path / "out")
     assert result["mesh"] == str(mesh_path) and result["views"] == 2
     assert all(np.isfinite([result["psnr"], result["ssim"], result["lpips"]]))
     assert (tmp_path / "out" / "l1" / "1.png").is_file() and files["targets_path"].is_file()
@@ -188,7 +191,7 @@ def test_bad_mesh_files_name_the_file(files, tmp_path, case, message):
 def test_empty_scan_names_the_scan(files, tmp_path):
     mesh_path = tmp_path / "registered.obj"
     write_obj(mesh_path, textured_sphere(100.0), texture_name="texture.png")
-    scan = Path(files["scans_root"]) / SUBJECT / f"{EXPRESSION}.ply"
+    scan = files["source"].scan_file(SUBJECT, EXPRESSION)
     scan.write_bytes(b"")
     with pytest.raises(InputError, match="empty") as err:
         evaluate_photometric_files(mesh_path, **files)

@@ -92,3 +92,22 @@ def test_schedule_checks_the_colour_pool():
     assert Schedule(lambdas=(1.0,), iterations=(1,)).pool(0) == 1
     with pytest.raises(ValueError, match="color_pool"):
         Schedule(lambdas=(1.0, 2.0), iterations=(1, 1), color_pool=(4,))
+
+
+def test_render_constraint_renders_with_the_given_function():
+    from gpja.register.hra import render_constraint
+
+    V, topo, uv, tex, targets = setup(size=32)
+    calls = []
+
+    def spy(*args, **kwargs):
+        calls.append(args[3])
+        return render_views(*args, **kwargs)
+
+    mask = torch.ones(8, 8, 1)
+    moved = V * torch.tensor([1.05, 0.97, 1.0])
+    for constraint in ("color", "depth", "normal"):
+        default, _ = render_constraint(constraint, moved, topo, targets, Switches(), uv, tex, mask)
+        spied, _ = render_constraint(constraint, moved, topo, targets, Switches(), uv, tex, mask, render=spy)
+        assert torch.equal(default, spied)
+    assert calls == [("color", "mask"), ("depth",), ("normal",)]

@@ -2,12 +2,14 @@
 import numpy as np
 import pytest
 
+from gpja.data.ground_truth import lighting_for
+from gpja.data.units import check_units
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh
 from gpja.register.hra import Switches
 from gpja.register.multiscale import Schedule
-from gpja.register.pipeline import (check_units, expression_targets, lighting_for, read_template, register,
-                                    warn_on_uncovered_views, write_template)
+from gpja.register.pipeline import expression_targets, register, warn_on_uncovered_views, write_template
+from gpja.results import read_template
 from gpja.register.template import TemplateSettings, create_template
 from tests.render.test_passes import surface_distance
 
@@ -54,9 +56,8 @@ def test_a_view_the_mesh_misses_is_named_in_a_warning(caplog):
 
 @pytest.fixture(scope="module")
 def subject(tmp_path_factory):
-    from gpja.cli import subject_seed_index
     from gpja.data.facescape import load_expression
-    from gpja.data.synthetic import SynthConfig, synthesize_subject
+    from gpja.data.synthetic import SynthConfig, subject_seed_index, synthesize_subject
 
     root = tmp_path_factory.mktemp("tiny")
     expressions = ("3_mouth_stretch", "13_lip_funneler")

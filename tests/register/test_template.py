@@ -62,9 +62,8 @@ def test_decimation_keeps_the_texture_mapping():
 
 @pytest.mark.slow
 def test_create_template_on_a_synthetic_subject(tmp_path):
-    from gpja.cli import subject_seed_index
     from gpja.data.facescape import load_expression
-    from gpja.data.synthetic import SynthConfig, synthesize_subject
+    from gpja.data.synthetic import SynthConfig, subject_seed_index, synthesize_subject
     from gpja.io import read_npz
 
     e = "3_mouth_stretch"

@@ -3,8 +3,10 @@ import importlib.util
 import pytest
 import torch
 
-from gpja.render import renderer, resolve_backend, render_views
-from gpja.render.nvdiffrast_backend import screen_to_clip
+from gpja.errors import InputError
+from gpja.render import BACKENDS, renderer, resolve_backend, render_views
+from gpja.render import backend as backend_module
+from gpja.render.nvdiffrast_backend import front_facing, render_views_nvdiffrast, screen_to_clip
 
 
 def test_auto_falls_back_to_cpu_without_cuda():
@@ -18,10 +20,41 @@ def test_auto_falls_back_to_cpu_without_cuda():
 def test_requesting_missing_nvdiffrast_fails_clearly():
     if importlib.util.find_spec("nvdiffrast") is not None and torch.cuda.is_available():
         pytest.skip("a GPU with nvdiffrast is present")
-    with pytest.raises(RuntimeError, match="nvdiffrast is not installed or no CUDA device"):
+    with pytest.raises(InputError, match="render.backend: 'nvdiffrast' is not installed or no CUDA device"):
         resolve_backend("nvdiffrast")
-    with pytest.raises(ValueError, match="must be one of"):
+    with pytest.raises(InputError, match="render.backend: must be one of auto, cpu, nvdiffrast"):
         resolve_backend("opengl")
+    with pytest.raises(InputError, match="nvdiffrast"):
+        renderer("nvdiffrast")
+
+
+@pytest.mark.parametrize("found, cuda, auto", [(False, False, "cpu"), (False, True, "cpu"), (True, False, "cpu"),
+                                               (True, True, "nvdiffrast")])
+def test_auto_needs_both_nvdiffrast_and_cuda(monkeypatch, found, cuda, auto):
+    monkeypatch.setattr(backend_module.importlib.util, "find_spec", lambda name: object() if found else None)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: cuda)
+    assert resolve_backend("auto") == auto
+    assert resolve_backend("cpu") == "cpu"
+    assert renderer("cpu") is render_views
+    assert renderer("auto") is (render_views_nvdiffrast if auto == "nvdiffrast" else render_views)
+    if auto == "cpu":
+        with pytest.raises(InputError, match="nvdiffrast"):
+            resolve_backend("nvdiffrast")
+    else:
+        assert resolve_backend("nvdiffrast") == "nvdiffrast"
+    assert set(BACKENDS) == {"auto", "cpu", "nvdiffrast"}
+
+
+def test_front_facing_matches_the_cpu_rasteriser():
+    """The nvdiffrast backend's culling uses the CPU rasteriser's orientation convention."""
+    from gpja.render import project_to_screen, rasterize_fragments
+    from tests.render.scenes import ring_cameras, sphere
+
+    V, F = sphere(subdivisions=2)
+    cams = ring_cameras(2, 32)
+    screen = project_to_screen(torch.tensor(V, dtype=torch.float32), cams)
+    frags = rasterize_fragments(screen, torch.tensor(F), 32, 32)
+    assert torch.equal(front_facing(screen, torch.tensor(F)), torch.from_numpy(frags.facing))
 
 
 def test_screen_to_clip_maps_pixel_centres_and_depth():

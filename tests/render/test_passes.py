@@ -153,18 +153,6 @@ def test_inverse_rendering_sphere_to_ellipsoid():
     assert end < start / 10, (start, end)
 
 
-def test_scan_targets_are_cached(tmp_path):
-    V, F = sphere(subdivisions=2)
-    cams = ring_cameras(2, 32)
-    first = render_scan_targets(V, F, cams, tmp_path / "targets.npz")
-    stamp = (tmp_path / "targets.npz").stat().st_mtime_ns
-    second = render_scan_targets(V, F, cams, tmp_path / "targets.npz")
-    assert (tmp_path / "targets.npz").stat().st_mtime_ns == stamp
-    torch.testing.assert_close(first["depth"], second["depth"])
-    other = render_scan_targets(V, F, ring_cameras(3, 32), tmp_path / "targets.npz")  # other views: re-rendered
-    assert other["depth"].shape[0] == 3
-
-
 @pytest.mark.parametrize(
     "mutate, message",
     [
@@ -211,3 +199,15 @@ def test_gradients_are_bitwise_reproducible():
     first, second = gradient(), gradient()
     assert torch.count_nonzero(first) > 0
     assert torch.equal(first, second)
+
+
+def test_uv_pass_is_the_interpolated_texture_coordinates():
+    from gpja.render import interpolate_attribute, project_to_screen, rasterize_fragments
+
+    V, topo, uv, _, cams = scene(dtype=torch.float32)
+    out = render_views(V, topo, cams, ("uv",), uv=uv, antialias_edges=False)
+    frags = rasterize_fragments(project_to_screen(V, cams), topo.faces, cams[0].height, cams[0].width)
+    assert torch.equal(out.pixels, frags.pixel)
+    assert torch.equal(out.values["uv"], interpolate_attribute(uv, topo.uv_faces, frags))
+    with pytest.raises(ValueError, match="need texture coordinates"):
+        render_views(V, topo.faces, cams, ("uv",))

@@ -1,146 +1,137 @@
-"""gpja.report.figures: cameras, renders, composites and the loss curves the figures are drawn from.
+"""gpja.report.figures: the figure registry, the per-configuration plan the rules are built from, and the
+one path every figure is drawn and written by (``gpja figure`` -> :func:`make_figure`).
 
-The figures themselves are drawn end to end by the CI workflow test (tests/test_project.py).
+The built-in figures are drawn end to end by the CI workflow test (tests/test_project.py).
 """
 from __future__ import annotations
 
-import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from gpja.cli import main
 from gpja.errors import InputError
-from gpja.mesh import TexturedMesh
-from gpja.report import figures as FG
-from tests.tolerances import FIGURE_CENTRE_PX, INTERPOLATED_CONSTANT
+from gpja.report.drawing import new_grid
+from gpja.report.figures import (
+    COMPARED,
+    FIGURES,
+    FigurePlan,
+    FigureRequest,
+    FigureSettings,
+    RunFiles,
+    make_figure,
+    register_figure,
+    unregister_figure,
+)
+from gpja.results import Layout
+
+ROOT = Path(__file__).resolve().parents[2]
+E1, E2 = "1_neutral", "12_lip_puckerer"
 
 
-def quad(z: float = 0.0, half: float = 50.0):
-    """A square of side 2*half mm facing +Z (counter-clockwise seen from +Z), two triangles."""
-    V = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]], dtype=np.float64)
-    F = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
-    return V, F
+def plan(**kwargs) -> FigurePlan:
+    base = dict(layout=Layout("results/x"), expressions=(E1, E2), compared=("gpja", "nicp"),
+                ablation_variants=("gpja-no_normal", "gpja-no_mask"), ablation_subjects=("S01",),
+                ablation_expressions=(E2,), photometric=True)
+    return FigurePlan(**{**base, **kwargs})
 
 
-def test_frontal_camera_centres_and_frames_the_points():
-    V, _ = quad(half=50.0)
-    camera = FG.frontal_camera(V, size=200, margin=1.0)
-    px, depth = camera.project(V)
-    assert np.all(depth > 0)
-    centre = camera.project(V.mean(axis=0, keepdims=True))[0][0]
-    np.testing.assert_allclose(centre, [99.5, 99.5], atol=FIGURE_CENTRE_PX)
-    # the square spans the image (percentile framing of 4 corners is the full extent), up is up
-    assert px[:, 0].min() == pytest.approx(-0.5, abs=1.0) and px[:, 0].max() == pytest.approx(199.5, abs=1.0)
-    top, bottom = camera.project(np.array([[0.0, 40.0, 0.0], [0.0, -40.0, 0.0]]))[0][:, 1]
-    assert top < bottom
-    left, right = camera.project(np.array([[-40.0, 0.0, 0.0], [40.0, 0.0, 0.0]]))[0][:, 0]
-    assert left < right  # +X (the subject's left) on the image's right, as seen from the front
+def test_a_toy_figure_registered_through_the_registry_is_drawn_by_gpja_figure(tmp_path):
+    seen = []
+
+    @register_figure("toy", methods=COMPARED, needs=("template",))
+    def draw(request: FigureRequest):
+        seen.append(request)
+        fig, axes = new_grid(1, 1)
+        axes[0][0].imshow(np.zeros((4, 4, 3)))
+        return fig
+
+    try:
+        assert FIGURES["toy"].function() is draw and FIGURES["toy"].caption == "figure_toy.rst"
+        with pytest.raises(ValueError, match="already registered"):
+            register_figure("toy")(draw)
+        out = tmp_path / "figures" / "toy_S01.png"
+        argv = ["figure", "toy", "--subject", "S01", "--methods", "gpja", "nicp", "--expressions", E1, E2,
+                "--results", str(tmp_path / "results"), "--scans-root", str(tmp_path / "scans"),
+                "--settings", '{"render_size": 64}', "--backend", "cpu", "--output", str(out)]
+        assert main(argv) == 0
+        assert out.read_bytes()[:4] == b"\x89PNG" and out.with_suffix(".pdf").read_bytes()[:4] == b"%PDF"
+        (request,) = seen
+        assert (request.subject, request.methods, request.expressions) == ("S01", ("gpja", "nicp"), (E1, E2))
+        assert request.settings == FigureSettings(render_size=64) and request.backend == "cpu"
+        assert request.files.layout == Layout(tmp_path / "results")
+        assert request.files.data.scans_root == tmp_path / "scans"
+        # the rules get it too: drawn for every subject, its inputs are what it needs
+        p = plan()
+        assert "toy" in p.figures("S02") and p.methods(FIGURES["toy"]) == ["gpja", "nicp"]
+        assert p.inputs(FIGURES["toy"], "S02") == ["results/x/S02/template/template.obj",
+                                                   "results/x/S02/template/texture.png"]
+    finally:
+        unregister_figure("toy")
+    assert "toy" not in FIGURES
+    with pytest.raises(SystemExit):  # no longer a choice of `gpja figure`
+        main(argv)
 
 
-def test_most_frontal_view_picks_the_camera_facing_the_face():
-    V, _ = quad()
-    K = np.array([[500.0, 0, 64], [0, 500.0, 64], [0, 0, 1]])
-    side = FG.Camera.look_at([600.0, 0, 100.0], [0, 0, 0], [0, 1, 0], K, 128, 128, name="side")
-    front = FG.Camera.look_at([0.0, 0, 600.0], [0, 0, 0], [0, 1, 0], K, 128, 128, name="front")
-    assert FG.most_frontal_view([side, front]) == 1
-    assert FG.most_frontal_view([front, side]) == 0
+def test_plan_draws_each_figure_when_the_config_produces_what_it_shows():
+    p = plan()
+    everything = ["template_stages", "geometric_errors", "convergence", "photometric_errors", "closeups",
+                  "ablation_normal", "ablation_mask"]
+    assert p.figures("S01") == everything
+    assert p.figures("S02") == everything[:5]  # not an ablation subject
+    assert plan(photometric=False).figures("S01") == ["template_stages", "geometric_errors", "convergence",
+                                                      "ablation_normal"]
+    assert plan(ablation_variants=("gpja-no_mask",)).figures("S01") == everything[:5] + ["ablation_mask"]
+    assert plan(ablation_expressions=("5_jaw_left",)).figures("S01") == everything[:5]  # not run
+    assert plan(ablation_variants=()).figures("S01") == everything[:5]
+    assert p.outputs("S02")[:2] == ["results/x/figures/template_stages_S02.png",
+                                    "results/x/figures/template_stages_S02.pdf"]
 
 
-def test_render_surface_interpolates_vertex_values_and_shades_facing_surfaces():
-    V, F = quad(half=40.0)
-    camera = FG.frontal_camera(V * 1.5, size=64)
-    r = FG.render_surface(V, F, camera, vertex_values=np.full(4, 0.7))
-    assert 0.2 < r.coverage.mean() < 0.6
-    np.testing.assert_allclose(r.values[r.coverage, 0], 0.7, atol=INTERPOLATED_CONSTANT)
-    assert np.all(r.values[~r.coverage] == 0)
-    # a headlight on a surface facing the camera: nearly full brightness
-    assert r.shade[r.coverage].min() > 0.95
-    # a linear ramp comes back linear: x = -40 .. 40 mm mapped to 0 .. 1 increases left to right
-    ramp = FG.render_surface(V, F, camera, vertex_values=(V[:, 0] + 40.0) / 80.0)
-    row = ramp.values[32, :, 0][ramp.coverage[32]]
-    assert np.all(np.diff(row) > 0)
+def test_plan_lists_each_figures_methods_expressions_and_inputs():
+    p = plan()
+    template = ["results/x/S01/template/template.obj", "results/x/S01/template/texture.png"]
+    assert p.inputs(FIGURES["template_stages"], "S01") == template
+    assert p.inputs(FIGURES["convergence"], "S01") == template + [f"results/x/S01/gpja/{e}.json" for e in (E1, E2)]
+    assert p.inputs(FIGURES["geometric_errors"], "S01") == template + [
+        f"results/x/S01/{m}/metrics/{e}.json" for m in ("gpja", "nicp") for e in (E1, E2)]
+    ablation = FIGURES["ablation_mask"]
+    assert p.methods(ablation) == ["gpja", "gpja-no_mask"] and p.expressions_of(ablation) == [E2]
+    assert p.inputs(ablation, "S01") == template + [f"results/x/S01/{m}/metrics/{E2}.json"
+                                                    for m in ("gpja", "gpja-no_mask")]
 
 
-def test_checkerboard_alternates_and_is_the_identity_on_equal_images():
-    a = np.zeros((20, 20, 3))
-    b = np.ones((20, 20, 3))
-    board = FG.checkerboard(a, b, squares=5)  # 4-px squares; the render (b) in even squares
-    assert board[0, 0, 0] == 1 and board[0, 4, 0] == 0 and board[4, 4, 0] == 1 and board[4, 0, 0] == 0
-    assert board.mean() == pytest.approx(0.5, abs=0.05)
-    np.testing.assert_array_equal(FG.checkerboard(a, a), a)
+def test_every_figure_has_a_draw_function():
+    """(Their captions: tests/test_project.py.)"""
+    for name, entry in FIGURES.items():
+        assert callable(entry.function()), name
 
 
-def test_loss_curves_spread_rotating_constraints_over_their_levels():
-    log = {"levels": [{"iterations": 6, "losses": {"color": [3, 2], "depth": [5, 4], "normal": [1, 1]}},
-                      {"iterations": 9, "losses": {"color": [2, 1, 1], "depth": [4, 3, 2], "normal": [1, 0.5, 0.5]}}]}
-    curves, starts = FG.loss_curves(log)
-    assert starts == [0, 6]
-    x, y = curves["depth"]
-    np.testing.assert_allclose(x, [1.5, 4.5, 7.5, 10.5, 13.5])
-    np.testing.assert_array_equal(y, [5, 4, 4, 3, 2])
-    assert all(np.all(np.diff(c[0]) > 0) for c in curves.values())
-
-
-def test_mouth_centre_is_the_mean_of_the_socket_vertices():
-    V, F = quad()
-    # UVs: the first triangle in the left half of the atlas, the second in the right half
-    UV = np.array([[0.1, 0.1], [0.4, 0.1], [0.4, 0.4], [0.6, 0.1], [0.9, 0.9], [0.6, 0.9]])
-    F_uv = np.array([[0, 1, 2], [3, 4, 5]])
-    mesh = TexturedMesh(V, F, UV, F_uv)
-    mask = np.ones((32, 32), np.float32)
-    mask[:, 16:] = 0.0  # the right half of the atlas is the socket: the second triangle
-    np.testing.assert_allclose(FG.mouth_centre(mesh, mask), V[[0, 2, 3]].mean(axis=0))
-    with pytest.raises(InputError, match="no mouth socket"):
-        FG.mouth_centre(mesh, np.ones((32, 32), np.float32))
-
-
-def test_scan_errors_must_match_the_scan(tmp_path):
-    files = FG.RunFiles(results=tmp_path)
-    details = files.details("S01", "gpja", "1_neutral")
-    details.mkdir(parents=True)
-    np.savez(details / "geometry_errors.npz", scan_vertex_error_mm=np.zeros(5))
-    assert FG.scan_errors(files, "S01", "gpja", "1_neutral", 5).shape == (5,)
-    with pytest.raises(InputError, match="geometry_errors.npz.*re-run the metrics"):
-        FG.scan_errors(files, "S01", "gpja", "1_neutral", 6)
+def test_the_registry_imports_neither_matplotlib_nor_torch():
+    """The Snakefile imports it while it parses."""
+    code = ("import sys, gpja.report.figures; "
+            "sys.exit(sorted({'matplotlib', 'torch'} & set(sys.modules)) != [])")
+    assert subprocess.run([sys.executable, "-c", code], cwd=ROOT).returncode == 0
 
 
 def test_bad_requests_name_the_problem(tmp_path):
-    files = FG.RunFiles(results=tmp_path)
-    settings = FG.FigureSettings()
+    request = FigureRequest(RunFiles(Layout(tmp_path)), "S01", ("gpja",), (E1,))
     with pytest.raises(InputError, match=r"\.png"):
-        FG.make_figure("convergence", files, "S01", ["gpja"], ["1_neutral"], settings, tmp_path / "x.jpg")
-    with pytest.raises(InputError, match="unknown figure"):
-        FG.make_figure("nope", files, "S01", ["gpja"], ["1_neutral"], settings, tmp_path / "x.png")
+        make_figure("convergence", request, tmp_path / "x.jpg")
+    with pytest.raises(InputError, match="unknown figure 'nope'"):
+        make_figure("nope", request, tmp_path / "x.png")
+    with pytest.raises(InputError, match="--expressions"):
+        make_figure("convergence", FigureRequest(RunFiles(Layout(tmp_path)), "S01"), tmp_path / "x.png")
     with pytest.raises(InputError, match="not found|missing"):  # no registration logs
-        FG.make_figure("convergence", files, "S01", ["gpja"], ["1_neutral"], settings, tmp_path / "x.png")
-    with pytest.raises(InputError, match="unknown figure settings"):
-        FG.FigureSettings.from_config({"colour": "red"})
+        make_figure("convergence", request, tmp_path / "x.png")
+    with pytest.raises(InputError, match="--scans-root"):  # no scans given
+        make_figure("geometric_errors", request, tmp_path / "x.png")
+    with pytest.raises(InputError, match="colour"):
+        FigureSettings.from_config({"colour": "red"}, "figures")
+    with pytest.raises(ValueError, match="unknown needs"):
+        register_figure("bad", needs=("scans",))(lambda request: None)
+    assert "bad" not in FIGURES
     assert not (tmp_path / "x.png").exists()
-
-
-def test_convergence_figure_writes_png_and_pdf(tmp_path):
-    """Regression case: a figure from a tiny log, both files written, nothing left behind on failure."""
-    log = {"levels": [{"iterations": 6, "losses": {"color": [0.3, 0.2], "depth": [5, 4], "normal": [0.4, 0.3]}}]}
-    (tmp_path / "S01" / "gpja").mkdir(parents=True)
-    (tmp_path / "S01" / "gpja" / "1_neutral.json").write_text(json.dumps(log))
-    png, pdf = FG.make_figure("convergence", FG.RunFiles(results=tmp_path), "S01", ["gpja"], ["1_neutral"],
-                              FG.FigureSettings(), tmp_path / "fig" / "convergence_S01.png")
-    assert png.read_bytes()[:4] == b"\x89PNG" and pdf.read_bytes()[:4] == b"%PDF"
-    assert sorted(p.name for p in (tmp_path / "fig").iterdir()) == ["convergence_S01.pdf", "convergence_S01.png"]
-
-
-def test_a_figure_that_fails_to_save_leaves_no_file(tmp_path, monkeypatch):
-    import matplotlib.figure
-
-    fig, _ = FG.new_grid(1, 1)
-    real = matplotlib.figure.Figure.savefig
-
-    def fail_on_pdf(self, fname, *args, format=None, **kwargs):
-        if format == "pdf":
-            raise OSError("disk full")
-        return real(self, fname, *args, format=format, **kwargs)
-
-    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", fail_on_pdf)
-    with pytest.raises(OSError, match="disk full"):
-        FG.save_figure(fig, tmp_path / "f.png")
-    assert list(tmp_path.iterdir()) == []

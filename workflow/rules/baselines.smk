@@ -1,38 +1,42 @@
-# Stage 3, baselines: optimal-step NICP from the same template, and meshes imported from other tools.
+# Stage 3, baselines: every enabled baseline of the registry (gpja/methods.py; NICP) from the same template,
+# and meshes imported from other tools.
 
+# only when the config enables a baseline (baselines.<name>.enabled)
+if BASELINE_METHODS:
 
-rule nicp_expression:
-    """Register the subject's template to one expression with optimal-step non-rigid ICP (Amberg et al. 2007)."""
-    input:
-        unpack(registration_inputs),
-        template=rules.build_template.output.obj,
-        texture=rules.build_template.output.texture,
-    output:
-        obj=f"{RESULTS}/{{subject}}/nicp/{{expression}}.obj",
-        log_json=f"{RESULTS}/{{subject}}/nicp/{{expression}}.json",
-    params:
-        scans=f"--scans-root {DATA['scans_root']}" + (f" --rt-scale {DATA['rt_scale']}" if DATA.get("rt_scale") else ""),
-        # functions, not strings: Snakemake would fill a string's {subject}/{expression} with this job's
-        # wildcards, but gpja needs the pattern (it also reads the template expression's landmarks)
-        landmarks=lambda wc: NICP.get("landmarks", ""),
-        template_landmarks=lambda wc: (f"--template-landmarks {shlex.quote(NICP['template_landmarks'])}"
-                                       if NICP.get("template_landmarks") else ""),
-        settings=json_arg(NICP.get("settings", {})),
-        template_dir=f"{RESULTS}/{{subject}}/template",
-        template_expression=TEMPLATE_EXPRESSION,
-    log:
-        f"{LOGS}/{{subject}}/nicp/{{expression}}.log",
-    benchmark:
-        f"{BENCH}/{{subject}}/nicp/{{expression}}.tsv"
-    threads: 2
-    resources:
-        mem_mb=4000,
-        runtime=10,
-    shell:
-        "gpja --threads {threads} nicp --subject {wildcards.subject} --expression {wildcards.expression}"
-        " {params.scans} --template-dir {params.template_dir} --template-expression {params.template_expression}"
-        " --landmarks {params.landmarks:q} {params.template_landmarks} --settings {params.settings}"
-        " --output {output.obj} > {log} 2>&1"
+    rule baseline_expression:
+        """Register the subject's template to one expression with a baseline method, e.g. optimal-step non-rigid
+        ICP (Amberg et al. 2007): `gpja baseline --method {method}` with the config's baselines.{method}."""
+        input:
+            unpack(registration_inputs),
+            template=rules.build_template.output.obj,
+            texture=rules.build_template.output.texture,
+        output:
+            obj=results_path("registration", "{subject}", "{method}", "{expression}"),
+            log_json=results_path("registration_log", "{subject}", "{method}", "{expression}"),
+        wildcard_constraints:
+            method="|".join(BASELINE_METHODS),
+        params:
+            data=data_args(),
+            cache=UNDISTORTED,
+            # a function, not a string: Snakemake would fill a string's {subject}/{expression} with this job's
+            # wildcards, but a baseline may need the pattern (NICP reads the template expression's landmarks)
+            section=lambda wc: json_arg(BASELINES[wc.method]),
+            template_dir=results_path("template_dir", "{subject}"),
+            template_expression=TEMPLATE_EXPRESSION,
+        log:
+            log_path("{subject}", "{method}", "{expression}"),
+        benchmark:
+            bench_path("{subject}", "{method}", "{expression}")
+        threads: 2
+        resources:
+            mem_mb=4000,
+            runtime=10,
+        shell:
+            "gpja --threads {threads} baseline --method {wildcards.method} --subject {wildcards.subject}"
+            " --expression {wildcards.expression} {params.data} --cache-dir {params.cache}"
+            " --template-dir {params.template_dir} --template-expression {params.template_expression}"
+            " --section {params.section} --output {output.obj} > {log} 2>&1"
 
 
 # only when the config names imported methods (baselines.external)
@@ -43,8 +47,8 @@ if EXTERNAL:
         input:
             unpack(expression_inputs),
         output:
-            obj=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.obj",
-            log_json=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.json",
+            obj=results_path("registration", "{subject}", "{method}", "{expression}"),
+            log_json=results_path("registration_log", "{subject}", "{method}", "{expression}"),
         wildcard_constraints:
             method="|".join(EXTERNAL),
         params:
@@ -54,9 +58,9 @@ if EXTERNAL:
             texture=lambda wc: external_texture_arg(wc),
             scans=f"--scans-root {DATA['scans_root']}" + (f" --rt-scale {DATA['rt_scale']}" if DATA.get("rt_scale") else ""),
         log:
-            f"{LOGS}/{{subject}}/{{method}}/{{expression}}.log",
+            log_path("{subject}", "{method}", "{expression}"),
         benchmark:
-            f"{BENCH}/{{subject}}/{{method}}/{{expression}}.tsv"
+            bench_path("{subject}", "{method}", "{expression}")
         threads: 1
         resources:
             mem_mb=2000,

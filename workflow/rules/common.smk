@@ -1,6 +1,12 @@
 # Paths and small helpers shared by the rules. Keep this file small: logic belongs in gpja.
+# Method names and switches come from the registry (gpja/methods.py), every results/logs/benchmarks path
+# from the layout (gpja/results.py), the figures from their registry (gpja/report/figures.py).
 import json
 import shlex
+
+import gpja.methods as registry
+from gpja.results import Layout
+from gpja.settings import data_expressions, settings_section
 
 DATASET = config["dataset"]
 SUBJECTS = [str(s) for s in config["subjects"]]
@@ -8,31 +14,46 @@ EXPRESSIONS = list(config["expressions"])
 DATA = config["data"]
 SYNTH = config["synthetic"]
 REG = config["registration"]
+BACKEND = config["render"]["backend"]
 TEMPLATE_EXPRESSION = REG["template_expression"]
 # the template's expression is always read (and synthesised), even if not registered
-DATA_EXPRESSIONS = EXPRESSIONS + [e for e in [TEMPLATE_EXPRESSION] if e not in EXPRESSIONS]
+DATA_EXPRESSIONS = data_expressions(config)
 BASELINES = config.get("baselines", {})
-NICP = BASELINES.get("nicp", {"enabled": False})
+# the registered baselines the config enables (baselines.<name>.enabled), in registry order
+BASELINE_METHODS = [m for m in registry.names("baseline") if BASELINES.get(m, {}).get("enabled")]
 # imported methods by name: {pattern, transform, texture}
 EXTERNAL = {m["name"]: m for m in BASELINES.get("external", [])}
 ABLATION = REG.get("ablations") or {"variants": []}
 ABLATION_VARIANTS = list(ABLATION["variants"])
 ABLATION_SUBJECTS = [str(s) for s in ABLATION.get("subjects") or SUBJECTS]
 ABLATION_EXPRESSIONS = list(ABLATION.get("expressions") or EXPRESSIONS)
-REGISTRATION_METHODS = ["gpja"] + ABLATION_VARIANTS
-# the methods of the comparison (Tables 1-2): GPJA, NICP, imported meshes; each runs on every (subject, expression)
-COMPARED = ["gpja"] + (["nicp"] if NICP.get("enabled") else []) + list(EXTERNAL)
+REGISTRATION_METHODS = registry.names("gpja") + ABLATION_VARIANTS
+# the methods of the comparison (Tables 1-2): GPJA, the baselines, imported meshes; each runs on every
+# (subject, expression)
+COMPARED = registry.names("gpja") + BASELINE_METHODS + list(EXTERNAL)
 METHODS = COMPARED + ABLATION_VARIANTS
-RESULTS = f"results/{DATASET}"
-REPORT_HTML = f"{RESULTS}/report.html"
-LOGS = f"logs/{DATASET}"
-BENCH = f"benchmarks/{DATASET}"
+LAYOUT = Layout.for_dataset(DATASET)
+RESULTS = str(LAYOUT.root)
+UNDISTORTED = str(LAYOUT.undistorted)
 
 
 wildcard_constraints:
     subject="|".join(SUBJECTS),
     expression="|".join(DATA_EXPRESSIONS),
     method="|".join(METHODS),
+
+
+def results_path(name, *parts):
+    """A path of the results layout (``Layout.<name>(*parts)``) as a string; parts may be wildcard patterns."""
+    return str(getattr(LAYOUT, name)(*parts))
+
+
+def log_path(*parts):
+    return str(LAYOUT.log(*parts))
+
+
+def bench_path(*parts):
+    return str(LAYOUT.benchmark(*parts))
 
 
 def params_json(subject, expression):
@@ -68,11 +89,7 @@ def data_args():
 
 def synth_settings():
     """The synthetic generator's settings as one JSON argument (seed included)."""
-    keys = ["seed", "image_size", "n_views", "camera_distance_mm", "scan_voxel_mm",
-            "scan_noise_mm", "distortion", "supersample", "raw_variant"]
-    settings = {k: SYNTH[k] for k in keys if k in SYNTH}
-    settings["expressions"] = DATA_EXPRESSIONS
-    return shlex.quote(json.dumps(settings, sort_keys=True))
+    return shlex.quote(json.dumps(settings_section(config, "synthetic"), sort_keys=True))
 
 
 def gt_args():
@@ -88,16 +105,13 @@ def external_texture_arg(wildcards):
     """An imported mesh references the subject's template texture when configured to (texture: template)."""
     texture = EXTERNAL[wildcards.method].get("texture")
     if texture == "template":
-        return f"--texture {RESULTS}/{wildcards.subject}/template/texture.png"
+        return f"--texture {results_path('template_file', wildcards.subject, 'texture.png')}"
     return f"--texture {shlex.quote(texture)}" if texture else ""
 
 
-ABLATIONS = {"gpja": [], "gpja-no_normal": ["normal"], "gpja-no_depth": ["depth"],
-             "gpja-no_color": ["color"], "gpja-no_mask": ["mask"]}
-
-
 def without_args(wildcards):
-    off = ABLATIONS[wildcards.method]
+    """The constraints an ablation variant switches off (gpja.methods), as `gpja register --without ...`."""
+    off = registry.method(wildcards.method).without
     return "--without " + " ".join(off) if off else ""
 
 
@@ -111,18 +125,18 @@ def runs(subject=None):
 
 
 def metrics_files(subject=None):
-    return [f"{RESULTS}/{s}/{m}/metrics/{e}.json" for s, m, e in runs(subject)]
+    return [results_path("metrics", s, m, e) for s, m, e in runs(subject)]
 
 
 def subject_targets(subject):
     """Everything one subject contributes: data checks, scan targets, template, every run's metrics, its figures."""
-    targets = [f"{RESULTS}/{subject}/data/{e}.json" for e in EXPRESSIONS]
-    targets += [f"{RESULTS}/{subject}/targets/{e}.npz" for e in EXPRESSIONS]
+    targets = [results_path("data_summary", subject, e) for e in EXPRESSIONS]
+    targets += [results_path("scan_targets", subject, e) for e in EXPRESSIONS]
     if SYNTH["enabled"]:
-        targets.append(f"{RESULTS}/{subject}/contact_sheet.png")
-    targets.append(f"{RESULTS}/{subject}/template/template.obj")
+        targets.append(results_path("contact_sheet", subject))
+    targets.append(results_path("template_file", subject, "template.obj"))
     targets += metrics_files(subject)
-    targets += subject_figures(subject)  # workflow/rules/figures.smk
+    targets += FIGURE_PLAN.outputs(subject)  # workflow/rules/figures.smk
     return targets
 
 
@@ -130,5 +144,5 @@ def all_targets(wildcards):
     """Every output: each subject's, then the tables and the HTML report built from all of them."""
     targets = [t for s in SUBJECTS for t in subject_targets(s)]
     targets += list(rules.make_tables.output)  # the tables (workflow/rules/report.smk)
-    targets.append(REPORT_HTML)
+    targets.append(str(LAYOUT.report))
     return targets

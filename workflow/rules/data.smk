@@ -10,7 +10,7 @@ if SYNTH["enabled"]:
             ground_truth=[f"{DATA['ground_truth_root']}/{{subject}}/{e}.npz" for e in DATA_EXPRESSIONS],
             subject_info=f"{DATA['ground_truth_root']}/{{subject}}/subject.json",
             contact_sheet=report(
-                f"{RESULTS}/{{subject}}/contact_sheet.png",
+                results_path("contact_sheet", "{subject}"),
                 caption="../report/contact_sheet.rst",
                 category="Data",
                 labels={"subject": "{subject}", "figure": "contact sheet"},
@@ -22,9 +22,9 @@ if SYNTH["enabled"]:
             gt_root=DATA["ground_truth_root"],
             raw_root=SYNTH.get("raw_root", f"data/{DATASET}/raw"),
         log:
-            f"{LOGS}/{{subject}}/synthesize_subject.log",
+            log_path("{subject}", "synthesize_subject"),
         benchmark:
-            f"{BENCH}/{{subject}}/synthesize_subject.tsv"
+            bench_path("{subject}", "synthesize_subject")
         threads: 2
         resources:
             mem_mb=4000,
@@ -41,14 +41,14 @@ rule check_expression:
     input:
         unpack(expression_inputs),
     output:
-        f"{RESULTS}/{{subject}}/data/{{expression}}.json",
+        results_path("data_summary", "{subject}", "{expression}"),
     params:
         data=data_args(),
-        cache=f"{RESULTS}/undistorted",
+        cache=UNDISTORTED,
     log:
-        f"{LOGS}/{{subject}}/check_expression/{{expression}}.log",
+        log_path("{subject}", "check_expression", "{expression}"),
     benchmark:
-        f"{BENCH}/{{subject}}/check_expression/{{expression}}.tsv"
+        bench_path("{subject}", "check_expression", "{expression}")
     threads: 1
     resources:
         mem_mb=2000,
@@ -63,17 +63,17 @@ rule render_scan_targets:
     input:
         unpack(expression_inputs),
     output:
-        targets=f"{RESULTS}/{{subject}}/targets/{{expression}}.npz",
+        targets=results_path("scan_targets", "{subject}", "{expression}"),
         # a diagnostic preview, left out of the HTML report (1.7 MB each would dominate it)
-        preview=f"{RESULTS}/{{subject}}/targets/{{expression}}.png",
+        preview=results_path("scan_targets_preview", "{subject}", "{expression}"),
     params:
         data=data_args(),
-        cache=f"{RESULTS}/undistorted",
-        backend=config["render"]["backend"],
+        cache=UNDISTORTED,
+        backend=BACKEND,
     log:
-        f"{LOGS}/{{subject}}/render_scan_targets/{{expression}}.log",
+        log_path("{subject}", "render_scan_targets", "{expression}"),
     benchmark:
-        f"{BENCH}/{{subject}}/render_scan_targets/{{expression}}.tsv"
+        bench_path("{subject}", "render_scan_targets", "{expression}")
     threads: 2
     resources:
         mem_mb=3000,

@@ -1,81 +1,53 @@
 # Stage 5, figures: the paper's figures per subject, PNG (in the report) and PDF, drawn by `gpja figure`.
+# One rule per entry of the figure registry (gpja/report/figures.py: what each figure draws, what it reads,
+# when the config draws it); its caption is workflow/report/figure_{name}.rst.
+from gpja.report.figures import FIGURES, FigurePlan
 
-FIGURES_DIR = f"{RESULTS}/figures"
-PHOTOMETRIC = config["metrics"].get("photometric", True)
-# the rule of each figure, what it shows, and the methods / expressions it draws (gpja/report/figures.py)
-FIGURE_KINDS = {
-    "template_stages": dict(methods=["gpja"], ablation=False),
-    "geometric_errors": dict(methods=COMPARED, ablation=False),
-    "photometric_errors": dict(methods=["gpja"], ablation=False),
-    "closeups": dict(methods=["gpja"], ablation=False),
-    "convergence": dict(methods=["gpja"], ablation=False),
-    "ablation_normal": dict(methods=["gpja", "gpja-no_normal"], ablation=True),
-    "ablation_mask": dict(methods=["gpja", "gpja-no_mask"], ablation=True),
-}
-
-
-def figure_kinds(subject):
-    """The figures this configuration draws for one subject."""
-    kinds = ["template_stages", "geometric_errors", "convergence"]
-    kinds += ["photometric_errors", "closeups"] if PHOTOMETRIC else []
-    if subject in ABLATION_SUBJECTS and any(e in EXPRESSIONS for e in ABLATION_EXPRESSIONS):
-        kinds += ["ablation_normal"] if "gpja-no_normal" in ABLATION_VARIANTS else []
-        kinds += ["ablation_mask"] if "gpja-no_mask" in ABLATION_VARIANTS and PHOTOMETRIC else []
-    return kinds
+FIGURE_PLAN = FigurePlan(
+    layout=LAYOUT,
+    expressions=tuple(EXPRESSIONS),
+    compared=tuple(COMPARED),
+    ablation_variants=tuple(ABLATION_VARIANTS),
+    ablation_subjects=tuple(ABLATION_SUBJECTS),
+    ablation_expressions=tuple(ABLATION_EXPRESSIONS),
+    photometric=config["metrics"].get("photometric", True),
+)
 
 
-def subject_figures(subject):
-    return [f"{FIGURES_DIR}/{kind}_{subject}.{ext}" for kind in figure_kinds(subject) for ext in ("png", "pdf")]
+def figure_inputs(figure):
+    """The input function of a figure's rule: what it needs of one subject (FigurePlan.inputs)."""
+    return lambda wildcards: FIGURE_PLAN.inputs(figure, wildcards.subject)
 
 
-def figure_expressions(kind):
-    return [e for e in ABLATION_EXPRESSIONS if e in EXPRESSIONS] if FIGURE_KINDS[kind]["ablation"] else EXPRESSIONS
-
-
-def figure_inputs(kind):
-    """A figure's inputs: the subject's template and the metrics (or registration logs) it draws."""
-
-    def inputs(wildcards):
-        files = [f"{RESULTS}/{wildcards.subject}/template/template.obj",
-                 f"{RESULTS}/{wildcards.subject}/template/texture.png"]
-        if kind == "convergence":
-            files += [f"{RESULTS}/{wildcards.subject}/gpja/{e}.json" for e in EXPRESSIONS]
-        elif kind != "template_stages":
-            files += [f"{RESULTS}/{wildcards.subject}/{m}/metrics/{e}.json" for m in FIGURE_KINDS[kind]["methods"]
-                      for e in figure_expressions(kind)]
-        return files
-
-    return inputs
-
-
-for _kind in FIGURE_KINDS:
+for _figure in FIGURES.values():
 
     rule:
         name:
-            f"plot_{_kind}"
+            f"plot_{_figure.name}"
         input:
-            figure_inputs(_kind),
+            figure_inputs(_figure),
         output:
             png=report(
-                f"{FIGURES_DIR}/{_kind}_{{subject}}.png",
-                caption=f"../report/figure_{_kind}.rst",
+                results_path("figure", _figure.name, "{subject}", "png"),
+                caption=f"../report/{_figure.caption}",
                 category="Figures",
-                subcategory=_kind.replace("_", " "),
-                labels={"figure": _kind.replace("_", " "), "subject": "{subject}"},
+                subcategory=_figure.name.replace("_", " "),
+                labels={"figure": _figure.name.replace("_", " "), "subject": "{subject}"},
             ),
-            pdf=f"{FIGURES_DIR}/{_kind}_{{subject}}.pdf",
+            pdf=results_path("figure", _figure.name, "{subject}", "pdf"),
         params:
-            kind=_kind,
-            methods=FIGURE_KINDS[_kind]["methods"],
-            expressions=figure_expressions(_kind),
+            kind=_figure.name,
+            methods=FIGURE_PLAN.methods(_figure),
+            expressions=FIGURE_PLAN.expressions_of(_figure),
             data=data_args(),
-            cache=f"{RESULTS}/undistorted",
+            cache=UNDISTORTED,
             settings=json_arg(config.get("figures", {})),
             results=RESULTS,
+            backend=BACKEND,
         log:
-            f"{LOGS}/{{subject}}/figures/{_kind}.log",
+            log_path("{subject}", "figures", _figure.name),
         benchmark:
-            f"{BENCH}/{{subject}}/figures/{_kind}.tsv"
+            bench_path("{subject}", "figures", _figure.name)
         threads: 1
         resources:
             mem_mb=3000,
@@ -83,4 +55,4 @@ for _kind in FIGURE_KINDS:
         shell:
             "gpja --threads {threads} figure {params.kind} --subject {wildcards.subject} --methods {params.methods:q}"
             " --expressions {params.expressions:q} --results {params.results} {params.data} --cache-dir {params.cache}"
-            " --settings {params.settings} --output {output.png} > {log} 2>&1"
+            " --settings {params.settings} --backend {params.backend} --output {output.png} > {log} 2>&1"

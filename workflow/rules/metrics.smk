@@ -5,23 +5,24 @@ rule compute_metrics:
     """Geometry (Chamfer, N.C., F-scores), photometry (PSNR, SSIM, LPIPS) and correspondence of one mesh."""
     input:
         unpack(registration_inputs),
-        mesh=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.obj",
-        template=f"{RESULTS}/{{subject}}/template/template.obj",
-        texture=f"{RESULTS}/{{subject}}/template/texture.png",
+        mesh=results_path("registration", "{subject}", "{method}", "{expression}"),
+        template=results_path("template_file", "{subject}", "template.obj"),
+        texture=results_path("template_file", "{subject}", "texture.png"),
     output:
-        json=f"{RESULTS}/{{subject}}/{{method}}/metrics/{{expression}}.json",
-        details=directory(f"{RESULTS}/{{subject}}/{{method}}/metrics/{{expression}}"),
+        json=results_path("metrics", "{subject}", "{method}", "{expression}"),
+        details=directory(results_path("metrics_details", "{subject}", "{method}", "{expression}")),
     params:
         data=data_args(),
         gt=gt_args(),
-        cache=f"{RESULTS}/undistorted",
+        cache=UNDISTORTED,
         settings=json_arg(config["metrics"]),
-        template_dir=f"{RESULTS}/{{subject}}/template",
+        template_dir=results_path("template_dir", "{subject}"),
         template_expression=TEMPLATE_EXPRESSION,
+        backend=BACKEND,
     log:
-        f"{LOGS}/{{subject}}/{{method}}/metrics/{{expression}}.log",
+        log_path("{subject}", "{method}", "metrics", "{expression}"),
     benchmark:
-        f"{BENCH}/{{subject}}/{{method}}/metrics/{{expression}}.tsv"
+        bench_path("{subject}", "{method}", "metrics", "{expression}")
     threads: 1
     resources:
         mem_mb=4000,
@@ -29,5 +30,5 @@ rule compute_metrics:
     shell:
         "gpja --threads {threads} metrics --subject {wildcards.subject} --expression {wildcards.expression} --method {wildcards.method}"
         " --mesh {input.mesh} --template-dir {params.template_dir} --template-expression {params.template_expression}"
-        " {params.data} {params.gt} --cache-dir {params.cache} --targets {input.targets}"
+        " {params.data} {params.gt} --cache-dir {params.cache} --targets {input.targets} --backend {params.backend}"
         " --settings {params.settings} --output {output.json} --output-dir {output.details} > {log} 2>&1"

@@ -5,7 +5,7 @@ def registration_inputs(wildcards, expression=None):
     """An expression's data files and its cached scan targets."""
     expression = expression or wildcards.expression
     files = {"params": params_json(wildcards.subject, expression), "scan": scan_ply(wildcards.subject, expression),
-             "targets": f"{RESULTS}/{wildcards.subject}/targets/{expression}.npz"}
+             "targets": results_path("scan_targets", wildcards.subject, expression)}
     if DATA.get("rt_scale"):
         files["rt_scale"] = DATA["rt_scale"]
     if DATA.get("ground_truth_root"):
@@ -18,28 +18,29 @@ rule build_template:
     input:
         unpack(lambda wc: registration_inputs(wc, TEMPLATE_EXPRESSION)),
     output:
-        obj=f"{RESULTS}/{{subject}}/template/template.obj",
-        mtl=f"{RESULTS}/{{subject}}/template/template.mtl",
+        obj=results_path("template_file", "{subject}", "template.obj"),
+        mtl=results_path("template_file", "{subject}", "template.mtl"),
         texture=report(
-            f"{RESULTS}/{{subject}}/template/texture.png",
+            results_path("template_file", "{subject}", "texture.png"),
             caption="../report/template_texture.rst",
             category="Template",
             labels={"subject": "{subject}", "figure": "texture"},
         ),
-        mask=f"{RESULTS}/{{subject}}/template/mouth_mask.png",
-        log_json=f"{RESULTS}/{{subject}}/template/template.json",
-        stages=directory(f"{RESULTS}/{{subject}}/template/stages"),
+        mask=results_path("template_file", "{subject}", "mouth_mask.png"),
+        log_json=results_path("template_file", "{subject}", "template.json"),
+        stages=directory(results_path("template_file", "{subject}", "stages")),
     params:
         data=data_args(),
         gt=gt_args(),
-        cache=f"{RESULTS}/undistorted",
+        cache=UNDISTORTED,
         settings=json_arg(REG["template"]),
         expression=TEMPLATE_EXPRESSION,
-        out_dir=f"{RESULTS}/{{subject}}/template",
+        out_dir=results_path("template_dir", "{subject}"),
+        backend=BACKEND,
     log:
-        f"{LOGS}/{{subject}}/build_template.log",
+        log_path("{subject}", "build_template"),
     benchmark:
-        f"{BENCH}/{{subject}}/build_template.tsv"
+        bench_path("{subject}", "build_template")
     threads: 2
     priority: 20  # every registration of the subject waits for it
     resources:
@@ -47,7 +48,7 @@ rule build_template:
         runtime=30,
     shell:
         "gpja --threads {threads} template --subject {wildcards.subject} --expression {params.expression} {params.data} {params.gt}"
-        " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
+        " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings} --backend {params.backend}"
         " --output-dir {params.out_dir} > {log} 2>&1"
 
 
@@ -59,21 +60,22 @@ rule register_expression:
         texture=rules.build_template.output.texture,
         mask=rules.build_template.output.mask,
     output:
-        obj=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.obj",
-        log_json=f"{RESULTS}/{{subject}}/{{method}}/{{expression}}.json",
+        obj=results_path("registration", "{subject}", "{method}", "{expression}"),
+        log_json=results_path("registration_log", "{subject}", "{method}", "{expression}"),
     wildcard_constraints:
         method="|".join(REGISTRATION_METHODS),
     params:
         data=data_args(),
         gt=gt_args(),
-        cache=f"{RESULTS}/undistorted",
+        cache=UNDISTORTED,
         settings=json_arg(REG["gpja"]),
         without=without_args,
-        template_dir=f"{RESULTS}/{{subject}}/template",
+        template_dir=results_path("template_dir", "{subject}"),
+        backend=BACKEND,
     log:
-        f"{LOGS}/{{subject}}/{{method}}/{{expression}}.log",
+        log_path("{subject}", "{method}", "{expression}"),
     benchmark:
-        f"{BENCH}/{{subject}}/{{method}}/{{expression}}.tsv"
+        bench_path("{subject}", "{method}", "{expression}")
     # one thread each: two registrations side by side on 2 cores finish 1.37x sooner than one after the other
     # on 2 threads (README "Runtime"); --set-threads register_expression=2 speeds up a single expression
     threads: 1
@@ -84,4 +86,4 @@ rule register_expression:
     shell:
         "gpja --threads {threads} register --subject {wildcards.subject} --expression {wildcards.expression} {params.data} {params.gt}"
         " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
-        " --template-dir {params.template_dir} {params.without} --output {output.obj} > {log} 2>&1"
+        " --template-dir {params.template_dir} {params.without} --backend {params.backend} --output {output.obj} > {log} 2>&1"

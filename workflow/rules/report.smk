@@ -7,7 +7,7 @@ TABLES = ["geometry", "photometric"]
 TABLES += ["ablation"] if ABLATION_VARIANTS else []
 TABLES += ["correspondence"] if DATA.get("ground_truth_root") and not DATA.get("rt_scale") else []
 TABLES += ["timing"]
-TABLES_DIR = f"{RESULTS}/tables"
+TABLES_DIR = str(LAYOUT.tables_dir)
 
 
 def table_outputs():
@@ -15,15 +15,15 @@ def table_outputs():
     outputs = {}
     for table in TABLES:
         for ext in ("md", "csv"):
-            outputs[f"{table}_{ext}"] = report(f"{TABLES_DIR}/{table}.{ext}", caption=f"../report/table_{table}.rst",
+            outputs[f"{table}_{ext}"] = report(results_path("table", table, ext), caption=f"../report/table_{table}.rst",
                                                category="Tables", labels={"table": table, "format": ext})
-        outputs[f"{table}_tex"] = f"{TABLES_DIR}/{table}.tex"
+        outputs[f"{table}_tex"] = results_path("table", table, "tex")
     return outputs
 
 
 def table_inputs(wildcards):
     """Every metrics JSON, and the registration logs the timing table reads."""
-    return {"metrics": metrics_files(), "logs": [f"{RESULTS}/{s}/{m}/{e}.json" for s, m, e in runs()]}
+    return {"metrics": metrics_files(), "logs": [results_path("registration_log", s, m, e) for s, m, e in runs()]}
 
 
 rule make_tables:
@@ -34,7 +34,7 @@ rule make_tables:
         **table_outputs(),
     params:
         results=RESULTS,
-        benchmarks=BENCH,
+        benchmarks=str(LAYOUT.benchmarks_root),
         subjects=SUBJECTS,
         expressions=EXPRESSIONS,
         methods=METHODS,
@@ -44,9 +44,9 @@ rule make_tables:
                   f"{shlex.join(ABLATION_EXPRESSIONS)}" if ABLATION_VARIANTS else ""),
         out_dir=TABLES_DIR,
     log:
-        f"{LOGS}/make_tables.log",
+        log_path("make_tables"),
     benchmark:
-        f"{BENCH}/make_tables.tsv"
+        bench_path("make_tables")
     threads: 1
     resources:
         mem_mb=1000,
@@ -63,15 +63,15 @@ rule make_report:
         [t for s in SUBJECTS for t in subject_targets(s)],
         rules.make_tables.output,
     output:
-        REPORT_HTML,
+        str(LAYOUT.report),
     params:
         snakefile=workflow.main_snakefile,
         # the run's own configuration (after --configfile/--config), so the report shows this run's files
         config=lambda wc: json.dumps(config, sort_keys=True),
     log:
-        f"{LOGS}/make_report.log",
+        log_path("make_report"),
     benchmark:
-        f"{BENCH}/make_report.tsv"
+        bench_path("make_report")
     threads: 1
     resources:
         mem_mb=2000,
@@ -90,11 +90,11 @@ rule subject_all:
     input:
         lambda wc: subject_targets(wc.subject),
     output:
-        touch(f"{RESULTS}/{{subject}}/all.done"),
+        touch(results_path("subject_done", "{subject}")),
     log:
-        f"{LOGS}/{{subject}}/subject_all.log",
+        log_path("{subject}", "subject_all"),
     benchmark:
-        f"{BENCH}/{{subject}}/subject_all.tsv"
+        bench_path("{subject}", "subject_all")
     threads: 1
     resources:
         mem_mb=100,

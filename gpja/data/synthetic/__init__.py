@@ -7,7 +7,7 @@ phi_e), :mod:`albedo` (procedural rest-space texture), :mod:`landmarks`
 (layout, raw variant, contact sheet).
 """
 from gpja.data.synthetic.expressions import DEFAULT_EXPRESSIONS, EXPRESSIONS, map_to_expression
-from gpja.data.synthetic.writer import GENERATOR_VERSION, SynthConfig, synthesize_subject
+from gpja.data.synthetic.writer import GENERATOR_VERSION, SynthConfig, subject_seed_index, synthesize_subject
 
 __all__ = ["EXPRESSIONS", "DEFAULT_EXPRESSIONS", "SynthConfig", "synthesize_subject", "map_to_expression",
-           "GENERATOR_VERSION"]
+           "GENERATOR_VERSION", "subject_seed_index"]

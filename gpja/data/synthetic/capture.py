@@ -17,6 +17,9 @@ import numpy as np
 
 from gpja.camera import Camera
 from gpja.lighting import shade_lambertian, sh_basis
+# the scene and the normals are the shared surface layer's (re-exported for the generator's modules)
+from gpja.surface import raycasting_scene as build_scene
+from gpja.surface import vertex_normals
 
 #: Background colour (linear RGB) of every image.
 BACKGROUND_RGB = np.array([0.22, 0.22, 0.23])
@@ -84,16 +87,6 @@ def make_sh(rng: np.random.Generator) -> np.ndarray:
     return sh
 
 
-def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (n, 3) of a mesh V (n, 3), F (m, 3)."""
-    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    N = np.zeros_like(V)
-    for k in range(3):
-        for c in range(3):
-            N[:, c] += np.bincount(F[:, k], weights=fn[:, c], minlength=len(V))
-    return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
-
-
 class RayBundle:
     """Supersampled rays of one camera, computed once per subject.
 
@@ -110,16 +103,6 @@ class RayBundle:
         o, d = cam.pixel_rays(np.stack([uu.ravel(), vv.ravel()], 1))
         self.rays = np.concatenate([o, d], 1).astype(np.float32)
         self.shape = (cam.height, S, cam.width, S)
-
-
-def build_scene(V: np.ndarray, F: np.ndarray):
-    """An Open3D RaycastingScene of the triangle mesh V (n, 3) mm, F (m, 3)."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(V, dtype=np.float32)),
-                        o3d.core.Tensor(np.ascontiguousarray(F, dtype=np.uint32)))
-    return scene
 
 
 def cast(scene, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

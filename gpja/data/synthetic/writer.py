@@ -15,6 +15,7 @@ Every file goes through :mod:`gpja.io`'s atomic writers.
 from __future__ import annotations
 
 import time
+import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -26,9 +27,9 @@ from gpja.data.synthetic.expressions import DEFAULT_EXPRESSIONS, EXPRESSIONS, ex
 from gpja.data.synthetic.head import build_head_program, sample_head_params
 from gpja.data.synthetic.landmarks import rest_landmarks
 from gpja.data.synthetic.scan import cut_scan
-from gpja.errors import InputError
 from gpja.io import link_or_copy, write_image, write_json, write_npz
 from gpja.mesh import write_ply
+from gpja.settings import from_section
 
 GENERATOR_VERSION = "1"
 #: Views shown in the contact sheet (those that exist).
@@ -67,21 +68,29 @@ class SynthConfig:
     expressions: tuple[str, ...] = DEFAULT_EXPRESSIONS
     render_voxel_mm: float = 0.8
 
-    def validate(self) -> "SynthConfig":
+    #: ``SynthConfig.from_config(section, source)``: from the ``synthetic`` section (gpja.settings).
+    from_config = classmethod(from_section)
+
+    def __post_init__(self) -> None:
         bad = [e for e in self.expressions if e not in EXPRESSIONS]
         if bad:
-            raise InputError("config", f"unknown synthetic expressions {bad}; known: {list(EXPRESSIONS)}")
+            raise ValueError(f"unknown synthetic expressions {bad}; known: {list(EXPRESSIONS)}")
         if len(set(self.expressions)) != len(self.expressions) or not self.expressions:
-            raise InputError("config", "synthetic expressions must be a non-empty list without repeats")
+            raise ValueError("synthetic expressions must be a non-empty list without repeats")
         for name in ("image_size", "n_views", "supersample"):
             if int(getattr(self, name)) < 1:
-                raise InputError("config", f"synthetic {name} must be >= 1")
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         for name in ("scan_voxel_mm", "render_voxel_mm", "camera_distance_mm"):
             if not float(getattr(self, name)) > 0:
-                raise InputError("config", f"synthetic {name} must be > 0")
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.scan_noise_mm < 0:
-            raise InputError("config", "synthetic scan_noise_mm must be >= 0")
-        return self
+            raise ValueError(f"scan_noise_mm must be >= 0, got {self.scan_noise_mm}")
+
+
+def subject_seed_index(subject: str) -> int:
+    """A stable per-subject integer (independent of the subject list's order): the ``subject_index``
+    of :func:`synthesize_subject`, CRC-32 of the name's UTF-8 bytes, 31 bits."""
+    return zlib.crc32(str(subject).encode("utf-8")) & 0x7FFFFFFF
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
@@ -131,7 +140,6 @@ def synthesize_subject(subject: str, subject_index: int, cfg: SynthConfig, image
     Returns:
         summary dict: timings per stage (s), vertex counts, paths.
     """
-    cfg.validate()
     T = {"sdf": 0.0, "marching_cubes": 0.0, "scan": 0.0, "render": 0.0, "write": 0.0, "setup": 0.0}
     t0 = time.perf_counter()
     images_root, scans_root, gt_root = Path(images_root), Path(scans_root), Path(gt_root)

@@ -1,0 +1,146 @@
+"""Reading a finished run: every metrics JSON of (subject, method, expression), checked and flattened,
+and the means the tables are built from.
+
+One metrics JSON per (subject, method, expression) at :meth:`gpja.results.Layout.metrics` (written by
+``gpja metrics``). Its headline scores are flattened to ``{metric: value}`` (:func:`flat_metrics`): the
+names the tables, the regression check and its reference file use.
+"""
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+
+from gpja.errors import InputError
+from gpja.io import read_json
+from gpja.results import Layout
+
+#: The key of the mean over the subjects (of the per-subject means) in :func:`subject_stats`.
+AVERAGE = "Average"
+
+GEOMETRY_REQUIRED = ("chamfer_l1_mm", "mesh_to_scan_mm", "scan_to_mesh_mm", "normal_consistency")
+PHOTOMETRIC_KEYS = ("psnr", "ssim", "lpips")
+CORRESPONDENCE_KEYS = ("mean_mm", "median_mm", "p95_mm")
+CORRESPONDENCE_NAMES = tuple(f"correspondence_{k}" for k in CORRESPONDENCE_KEYS)
+
+
+def read_required_json(path: str | Path, what: str) -> dict:
+    """Read a JSON object; a missing file raises :class:`InputError` naming it and ``what`` it should hold."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, f"missing: {what}")
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise InputError(path, "expected a JSON object")
+    return data
+
+
+def is_number(value) -> bool:
+    """True for an int or float (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def check_metrics_record(path: str | Path, record: dict) -> None:
+    """Raise :class:`InputError` naming ``path`` when a metrics JSON lacks a score the tables read."""
+    geometry = record.get("geometry")
+    if not isinstance(geometry, dict):
+        raise InputError(path, "no 'geometry' section (not a `gpja metrics` JSON?)")
+    for key in GEOMETRY_REQUIRED:
+        if not is_number(geometry.get(key)):
+            raise InputError(path, f"geometry.{key} is missing or not a number")
+    fscore = geometry.get("fscore")
+    if not isinstance(fscore, dict) or not fscore or not all(is_number(v) for v in fscore.values()):
+        raise InputError(path, "geometry.fscore must map thresholds (mm) to numbers")
+    for section, keys in (("photometric", PHOTOMETRIC_KEYS), ("correspondence", CORRESPONDENCE_KEYS)):
+        part = record.get(section)
+        if part is not None and not (isinstance(part, dict) and all(is_number(part.get(k)) for k in keys)):
+            raise InputError(path, f"'{section}' must be null or hold numbers {', '.join(keys)}")
+
+
+def fscore_name(threshold: str | float) -> str:
+    """Metric name of the F-score at ``threshold`` mm: ``fscore@0.5``, ``fscore@1``."""
+    return f"fscore@{float(threshold):g}"
+
+
+def metric_family(name: str) -> str:
+    """``fscore@0.5`` -> ``fscore``; other names are their own family."""
+    return name.split("@", 1)[0]
+
+
+def flat_metrics(record: dict) -> dict[str, float]:
+    """A metrics JSON's headline scores as ``{name: value}``.
+
+    Names: ``chamfer_l1_mm``, ``mesh_to_scan_mm``, ``scan_to_mesh_mm`` (mm), ``normal_consistency``,
+    ``fscore@<t>`` (t in mm); with photometry ``psnr`` (dB), ``ssim``, ``lpips``; with synthetic ground
+    truth ``correspondence_mean_mm``, ``correspondence_median_mm``, ``correspondence_p95_mm`` (mm).
+    """
+    geometry = record["geometry"]
+    values = {key: float(geometry[key]) for key in GEOMETRY_REQUIRED}
+    values.update({fscore_name(t): float(v) for t, v in geometry["fscore"].items()})
+    if record.get("photometric"):
+        values.update({key: float(record["photometric"][key]) for key in PHOTOMETRIC_KEYS})
+    if record.get("correspondence"):
+        values.update({f"correspondence_{k}": float(record["correspondence"][k]) for k in CORRESPONDENCE_KEYS})
+    return values
+
+
+@dataclass
+class Run:
+    """A run's flattened scores: ``values[(subject, method, expression)] = {metric: value}``."""
+
+    subjects: list[str]
+    methods: list[str]
+    expressions: list[str]
+    values: dict[tuple[str, str, str], dict[str, float]]
+    paths: dict[tuple[str, str, str], Path]
+
+
+def load_run(results: str | Path, subjects, methods, expressions) -> Run:
+    """Read every metrics JSON of ``subjects`` x ``methods`` x ``expressions``; a missing one raises InputError."""
+    layout = Layout(results)
+    values, paths = {}, {}
+    for subject in subjects:
+        for method in methods:
+            for expression in expressions:
+                path = layout.metrics(subject, method, expression)
+                what = f"metrics of subject {subject}, method {method}, expression {expression} (`gpja metrics`)"
+                record = read_required_json(path, what)
+                check_metrics_record(path, record)
+                values[(subject, method, expression)] = flat_metrics(record)
+                paths[(subject, method, expression)] = path
+    return Run(list(subjects), list(methods), list(expressions), values, paths)
+
+
+def fscore_names(run: Run) -> list[str]:
+    """The F-score names every record of ``run`` has, by threshold."""
+    common = set.intersection(*({n for n in v if n.startswith("fscore@")} for v in run.values.values()))
+    return sorted(common, key=lambda n: float(n.split("@")[1]))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Statistics
+
+
+def mean_or_none(values: list[float]) -> float | None:
+    """Arithmetic mean, None for no values."""
+    return statistics.fmean(values) if values else None
+
+
+def means(dicts: list[dict], names) -> dict[str, float | None]:
+    """Per name, the mean over the dicts that have a value for it (None where none has)."""
+    return {n: mean_or_none([d[n] for d in dicts if d.get(n) is not None]) for n in names}
+
+
+def subject_stats(run: Run, methods, names) -> dict[tuple[str, str], dict[str, float | None]]:
+    """``{(subject, method): means over expressions}`` plus ``(AVERAGE, method)``: the mean of the subject means."""
+    stats = {}
+    for method in methods:
+        for subject in run.subjects:
+            stats[(subject, method)] = means([run.values[(subject, method, e)] for e in run.expressions], names)
+        stats[(AVERAGE, method)] = means([stats[(s, method)] for s in run.subjects], names)
+    return stats
+
+
+def count_values(run: Run, subjects, method: str, name: str) -> int:
+    """How many expressions of ``subjects`` have a value of metric ``name`` for ``method``."""
+    return sum(run.values[(s, method, e)].get(name) is not None for s in subjects for e in run.expressions)

@@ -1,0 +1,194 @@
+"""The one description of where a run's files are: results, logs and benchmarks.
+
+Every path the workflow writes is named here once. The Snakemake rules call
+these with wildcard placeholders (``Layout("results/x").registration("{subject}",
+"{method}", "{expression}")`` gives the rule's output pattern); the CLI, the
+tables, the figures and the regression check call them with real names, so the
+rules and the readers cannot disagree about a path.
+
+    results/{dataset}/{subject}/data/{expression}.json         check_expression summary
+    results/{dataset}/{subject}/targets/{expression}.npz|.png  scan depth/normal/coverage targets
+    results/{dataset}/{subject}/template/                      template.obj|.mtl, texture.png, mouth_mask.png,
+                                                               template.json, stages/
+    results/{dataset}/{subject}/{method}/{expression}.obj|.json   a method's mesh and its log
+    results/{dataset}/{subject}/{method}/metrics/{expression}.json (+ folder of per-vertex errors, renders)
+    results/{dataset}/{subject}/contact_sheet.png, all.done
+    results/{dataset}/tables/{table}.csv|md|tex
+    results/{dataset}/figures/{figure}_{subject}.png|pdf
+    results/{dataset}/undistorted/                             cache of undistorted reference images
+    results/{dataset}/report.html
+    logs/{dataset}/... and benchmarks/{dataset}/...            mirror the step that wrote them
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the mesh and image readers load on use: the Snakefile imports this module for paths only
+    import numpy as np
+
+    from gpja.mesh import TexturedMesh
+
+#: The files of a template folder (``Layout.template_dir``).
+TEMPLATE_FILES = ("template.obj", "template.mtl", "texture.png", "mouth_mask.png", "template.json")
+#: Formats every table is written in.
+TABLE_FORMATS = ("csv", "md", "tex")
+#: Formats every figure is written in (the PNG goes into the HTML report).
+FIGURE_FORMATS = ("png", "pdf")
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Paths of one dataset's run. ``root`` is ``results/{dataset}``; logs and benchmarks sit beside it.
+
+    Every method takes names (or Snakemake wildcard placeholders such as ``"{subject}"``) and returns a
+    :class:`~pathlib.Path`; nothing is created or checked here.
+    """
+
+    root: Path
+    logs_root: Path | None = None
+    benchmarks_root: Path | None = None
+
+    @classmethod
+    def for_dataset(cls, dataset: str, base: str | Path = ".") -> "Layout":
+        """``results/{dataset}``, ``logs/{dataset}`` and ``benchmarks/{dataset}`` under ``base``."""
+        base = Path(base)
+        return cls(base / "results" / dataset, base / "logs" / dataset, base / "benchmarks" / dataset)
+
+    def __post_init__(self):
+        object.__setattr__(self, "root", Path(self.root))
+
+    # --- per subject -----------------------------------------------------------------------------------------
+    def subject_dir(self, subject: str) -> Path:
+        return self.root / str(subject)
+
+    def data_summary(self, subject: str, expression: str) -> Path:
+        """The ``check_expression`` summary JSON of one expression."""
+        return self.subject_dir(subject) / "data" / f"{expression}.json"
+
+    def scan_targets(self, subject: str, expression: str) -> Path:
+        """The cached scan depth/normal/coverage targets of one expression (.npz; a .png preview beside it)."""
+        return self.subject_dir(subject) / "targets" / f"{expression}.npz"
+
+    def scan_targets_preview(self, subject: str, expression: str) -> Path:
+        """The .png preview beside :meth:`scan_targets`."""
+        return self.scan_targets(subject, expression).with_suffix(".png")
+
+    def contact_sheet(self, subject: str) -> Path:
+        return self.subject_dir(subject) / "contact_sheet.png"
+
+    def subject_done(self, subject: str) -> Path:
+        return self.subject_dir(subject) / "all.done"
+
+    def template_dir(self, subject: str) -> Path:
+        return self.subject_dir(subject) / "template"
+
+    def template_file(self, subject: str, name: str) -> Path:
+        """One of :data:`TEMPLATE_FILES` (or ``stages``) of the subject's template folder."""
+        return self.template_dir(subject) / name
+
+    def template_stage(self, subject: str, stage: str) -> Path:
+        """A mesh the template step keeps of one of its stages (``bust``, ``fitted``): ``stages/{stage}.obj``."""
+        return self.template_file(subject, "stages") / f"{stage}.obj"
+
+    # --- per (subject, method, expression) -------------------------------------------------------------------
+    def method_dir(self, subject: str, method: str) -> Path:
+        return self.subject_dir(subject) / method
+
+    def registration(self, subject: str, method: str, expression: str) -> Path:
+        """A method's mesh of one expression (.obj); its JSON log is :meth:`registration_log`."""
+        return self.method_dir(subject, method) / f"{expression}.obj"
+
+    def registration_log(self, subject: str, method: str, expression: str) -> Path:
+        """The JSON log a registration (GPJA, a baseline) or an import writes beside its mesh."""
+        return self.method_dir(subject, method) / f"{expression}.json"
+
+    def metrics(self, subject: str, method: str, expression: str) -> Path:
+        """Where ``gpja metrics`` writes the scores of one (subject, method, expression)."""
+        return self.method_dir(subject, method) / "metrics" / f"{expression}.json"
+
+    def metrics_details(self, subject: str, method: str, expression: str) -> Path:
+        """The folder of per-vertex errors, renders and L1 images beside :meth:`metrics`."""
+        return self.method_dir(subject, method) / "metrics" / expression
+
+    def find_metrics(self) -> list[tuple[str, str, str]]:
+        """``(subject, method, expression)`` of every :meth:`metrics` JSON present under ``root``, sorted."""
+        pattern = self.metrics("*", "*", "*").relative_to(self.root)
+        return [(p.parent.parent.parent.name, p.parent.parent.name, p.stem) for p in sorted(self.root.glob(str(pattern)))]
+
+    # --- dataset-wide ----------------------------------------------------------------------------------------
+    @property
+    def undistorted(self) -> Path:
+        """The cache of undistorted reference images."""
+        return self.root / "undistorted"
+
+    @property
+    def tables_dir(self) -> Path:
+        return self.root / "tables"
+
+    def table(self, name: str, fmt: str) -> Path:
+        return self.tables_dir / f"{name}.{fmt}"
+
+    @property
+    def figures_dir(self) -> Path:
+        return self.root / "figures"
+
+    def figure(self, kind: str, subject: str, fmt: str = "png") -> Path:
+        return self.figures_dir / f"{kind}_{subject}.{fmt}"
+
+    @property
+    def report(self) -> Path:
+        return self.root / "report.html"
+
+    # --- logs and benchmarks mirror the step -----------------------------------------------------------------
+    def log(self, *parts: str) -> Path:
+        """``logs/{dataset}/<parts...>.log``: e.g. ``log(subject, method, expression)``."""
+        return self._mirror(self.logs_root, "logs", parts, ".log")
+
+    def benchmark(self, *parts: str) -> Path:
+        """``benchmarks/{dataset}/<parts...>.tsv``: Snakemake's benchmark file of the same step."""
+        return self._mirror(self.benchmarks_root, "benchmarks", parts, ".tsv")
+
+    def _mirror(self, base: Path | None, kind: str, parts, suffix: str) -> Path:
+        if base is None:
+            base = self.root.parent.parent / kind / self.root.name
+        *head, last = [str(p) for p in parts]
+        return Path(base, *head, f"{last}{suffix}")
+
+
+# --- reading and writing a run's meshes (plain paths, as the Layout gives them) ----------------------------------
+
+def read_template(template_dir: str | Path) -> "tuple[TexturedMesh, np.ndarray]":
+    """The template mesh (with texture) and its mouth mask from a template folder.
+
+    Returns:
+        (:class:`gpja.mesh.TexturedMesh` with UVs and texture, (T, T) float32 mouth mask in [0, 1]).
+    Raises:
+        InputError: a missing or corrupt file, or a template without texture coordinates or texture image.
+    """
+    from gpja.errors import InputError
+    from gpja.io import read_image
+    from gpja.mesh import read_obj
+
+    d = Path(template_dir)
+    mesh = read_obj(d / "template.obj")
+    if mesh.texture is None or not mesh.has_uv:
+        raise InputError(d / "template.obj", "a template needs texture coordinates and a texture image")
+    mask = read_image(d / "mouth_mask.png", mode="L")
+    return mesh, mask
+
+
+def write_registration(mesh: "TexturedMesh", log: dict, obj_path: str | Path, texture_ref: str) -> None:
+    """Write a registered mesh (OBJ referencing the shared template texture) and its JSON log beside it.
+
+    Args:
+        mesh: the registered :class:`gpja.mesh.TexturedMesh` (its own texture image is not written).
+        log: JSON-able log, written to ``obj_path`` with the suffix ``.json``.
+        texture_ref: the texture path the MTL names, relative to the OBJ's folder.
+    """
+    from gpja.io import write_json
+    from gpja.mesh import TexturedMesh, write_obj
+
+    write_obj(obj_path, TexturedMesh(mesh.V, mesh.F, mesh.UV, mesh.F_uv), texture_name=texture_ref)
+    write_json(Path(obj_path).with_suffix(".json"), log)

@@ -1,0 +1,68 @@
+"""gpja.methods: the registry every rule, table and figure reads, its config check, and the generic
+`gpja baseline` command that runs any registered baseline."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from gpja import methods as M
+from gpja.cli import main
+from gpja.data.source import DataSource
+from gpja.errors import InputError
+
+CALLS: list[tuple] = []
+
+
+def toy_baseline(template_dir, source, subject, expression, output, section, template_expression, progress):
+    """A baseline with the one signature every baseline has; it records its call."""
+    CALLS.append((template_dir, source, subject, expression, output, section, template_expression))
+    progress("toy: done")
+    return {"vertices": 4}
+
+
+def test_registry_names_labels_and_switches():
+    assert M.names("gpja") == ["gpja"]
+    assert M.names("ablation") == ["gpja-no_normal", "gpja-no_depth", "gpja-no_color", "gpja-no_mask"]
+    assert M.names("baseline") == ["nicp"]
+    assert [M.label(m) for m in ("gpja", "nicp", "gpja-no_mask", "nphm")] == ["GPJA", "NICP", "GPJA w/o mask", "nphm"]
+    assert M.method("gpja-no_depth").without == ("depth",) and M.method("gpja").without == ()
+    assert M.method("gpja-no_normal").ablation_label == ("w/o L_normal", r"w/o $\mathcal{L}_{normal}$")
+    assert M.method("gpja-no_mask").ablation_label == "w/o mask"
+    assert M.method("nphm").kind == "imported"
+
+
+@pytest.mark.parametrize("change, key", [
+    (lambda c: c["registration"]["ablations"].update(variants=["gpja-no_light"]), "registration.ablations.variants"),
+    (lambda c: c["baselines"].update(icp={"enabled": True}), "baselines.icp"),
+    (lambda c: c["baselines"].update(external=[{"name": "gpja", "pattern": "x"}]), "baselines.external"),
+    (lambda c: c["baselines"].update(external=[{"name": "tu", "pattern": "x"}, {"name": "tu", "pattern": "y"}]),
+     "baselines.external"),
+], ids=["ablation", "baseline", "imported-taken", "imported-twice"])
+def test_config_method_names_are_checked_against_the_registry(change, key):
+    config = {"registration": {"ablations": {"variants": ["gpja-no_mask"]}},
+              "baselines": {"nicp": {"enabled": True}, "external": [{"name": "tu", "pattern": "x"}]}}
+    M.check_config(config)
+    change(config)
+    with pytest.raises(InputError, match=rf"^{key}: "):
+        M.check_config(config)
+
+
+def test_gpja_baseline_runs_any_registered_baseline(tmp_path, monkeypatch, capsys):
+    """Adding a baseline is one module plus one METHODS entry: `gpja baseline` finds it by name."""
+    monkeypatch.setitem(M.METHODS, "toy", M.Method("toy", "Toy", "baseline", entry="tests.test_methods:toy_baseline"))
+    CALLS.clear()
+    section = {"enabled": True, "landmarks": "{subject}/{expression}.txt"}
+    argv = ["baseline", "--method", "toy", "--subject", "S01", "--expression", "1_neutral",
+            "--scans-root", str(tmp_path / "scans"), "--template-dir", str(tmp_path / "template"),
+            "--template-expression", "3_mouth_stretch", "--section", json.dumps(section),
+            "--output", str(tmp_path / "toy" / "1_neutral.obj")]
+    assert main(argv) == 0
+    (call,) = CALLS
+    assert call == (str(tmp_path / "template"), DataSource(scans_root=tmp_path / "scans"), "S01", "1_neutral",
+                    str(tmp_path / "toy" / "1_neutral.obj"), section, "3_mouth_stretch")
+    assert "toy: done" in capsys.readouterr().out
+    assert main([*argv[:2], "gpja", *argv[3:]]) == 2
+    assert "--method: 'gpja' is not a baseline; registered: nicp, toy" in capsys.readouterr().err
+    assert main([*argv[:-4], "--section", "[1]", *argv[-2:]]) == 2
+    assert "--section: expected a JSON object" in capsys.readouterr().err
