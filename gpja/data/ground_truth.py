@@ -1,10 +1,8 @@
-"""The synthetic ground truth's lighting, for scoring only.
+"""What the registration may read from the synthetic ground truth (for now: its lighting).
 
 The synthetic benchmark stores, per expression, ``{ground_truth_root}/{subject}/{expression}.npz``
-(``scan_rest_coords``, ``landmarks``, ``landmarks_rest``, ``sh``, ``skin_gain``). Only the metrics and the
-figures read it (the estimated lighting's error, an oracle render); the template and the registrations
-estimate the lighting from the images (``gpja.register.lighting_estimate``) and never import this module
-(``tests/test_no_oracle.py``).
+(``scan_rest_coords``, ``landmarks``, ``landmarks_rest``, ``sh``, ``skin_gain``). Scoring reads it freely; the method
+under test should estimate what a real capture lacks, and today reads only the lighting here.
 """
 from __future__ import annotations
 
@@ -17,13 +15,10 @@ from gpja.lighting import uniform_sh
 
 
 def lighting_for(subject: str, expression: str, ground_truth_root: str | Path | None) -> np.ndarray:
-    """(9, 3) float64 true SH lighting of a synthetic expression; uniform white light without ground truth.
+    """(9, 3) SH lighting: the synthetic ground truth when present, else uniform white light.
 
     FaceScape was captured under near-uniform light (paper: "a reasonable simplification").
-
-    Raises:
-        InputError: the ground-truth file is missing or corrupt.
     """
     if ground_truth_root:
-        return np.asarray(read_npz(Path(ground_truth_root) / subject / f"{expression}.npz")["sh"], dtype=np.float64)
+        return read_npz(Path(ground_truth_root) / subject / f"{expression}.npz")["sh"]
     return uniform_sh(1.0)
