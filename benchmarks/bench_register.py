@@ -64,12 +64,11 @@ def main() -> None:
     parser.add_argument("--results", default="results/synthetic")
     args = parser.parse_args()
 
-    from gpja.data.ground_truth import lighting_for
     from gpja.data.source import DataSource
     from gpja.register.hra import Switches
     from gpja.register.multiscale import Schedule
     from gpja.register.pipeline import expression_targets, register
-    from gpja.results import read_template
+    from gpja.results import read_template, read_template_lighting
 
     default = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["registration"]["gpja"]
     settings = {**(PAPER if args.preset == "paper" else default), **json.loads(args.settings)}
@@ -77,14 +76,14 @@ def main() -> None:
     data_root, results = Path(args.data), Path(args.results) / args.subject
     template_dir = results / "template"
     targets_path = results / "targets" / f"{args.expression}.npz"
-    for needed in (template_dir / "template.obj", targets_path):
+    for needed in (template_dir / "template.obj", template_dir / "lighting.json", targets_path):
         if not needed.exists():
             sys.exit(f"bench_register: {needed} is missing; run the workflow first (snakemake --cores 2)")
 
     data = DataSource(images_root=data_root / "images", scans_root=data_root / "scans",
                       cache_dir=Path(args.results) / "undistorted").load(args.subject, args.expression)
-    targets = expression_targets(data, targets_path, lighting_for(args.subject, args.expression,
-                                                                  data_root / "ground_truth"))
+    # the lighting the template's texture was fused under (lighting.json), as `gpja register` reads it
+    targets = expression_targets(data, targets_path, read_template_lighting(template_dir))
     template, mask = read_template(template_dir)
     start = time.perf_counter()
     mesh, log = register(template, mask, targets, schedule, Switches(), progress=lambda m: print(m, file=sys.stderr))

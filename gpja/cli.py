@@ -84,27 +84,31 @@ def _renderer(args: argparse.Namespace):
     return renderer(args.backend)
 
 
-def _load_for_registration(args, render=None):
-    """The expression's data and its registration targets (images, scan targets, SH lighting)."""
-    from gpja.data.ground_truth import lighting_for
+def _load_for_registration(args, sh, render=None):
+    """The expression's data and its registration targets (images, scan targets) under SH lighting ``sh`` (9, 3).
+
+    Reads only the capture (images, cameras, scan): never the synthetic ground truth.
+    """
     from gpja.data.source import DataSource
     from gpja.register.pipeline import expression_targets, warn_on_holes
 
     data = DataSource.from_args(args).load(args.subject, args.expression)
     warn_on_holes(data)
-    sh = lighting_for(args.subject, args.expression, args.ground_truth_root)
     return data, expression_targets(data, args.targets, sh, render=render)
 
 
 def cmd_template(args: argparse.Namespace) -> None:
+    from gpja.lighting import uniform_sh
     from gpja.register.pipeline import write_template
     from gpja.register.template import TemplateSettings, create_template
 
     settings = TemplateSettings.from_config(_settings(args.settings), "--settings")
     render = _renderer(args)
-    data, targets = _load_for_registration(args, render)
+    # the depth-only fit does not shade; the texture's lighting is estimated from the images (or uniform)
+    data, targets = _load_for_registration(args, uniform_sh(1.0), render)
     start = time.perf_counter()
-    template = create_template(data.scan.V, targets, settings, progress=lambda m: print(m, flush=True), render=render)
+    template = create_template(data.scan.V, targets, settings, progress=lambda m: print(m, flush=True), render=render,
+                               lighting=args.lighting)
     write_template(template, args.output_dir)
     print(f"template: {args.subject} done in {time.perf_counter() - start:.1f} s "
           f"({len(template.mesh.V)} vertices) -> {args.output_dir}", flush=True)
@@ -117,12 +121,13 @@ def cmd_register(args: argparse.Namespace) -> None:
     from gpja.register.hra import Switches
     from gpja.register.multiscale import Schedule
     from gpja.register.pipeline import register
-    from gpja.results import read_template, write_registration
+    from gpja.results import LIGHTING_FILE, read_template, read_template_lighting, write_registration
 
     schedule = Schedule.from_config(_settings(args.settings), "--settings")
     template, mask = read_template(args.template_dir)
     render = _renderer(args)
-    data, targets = _load_for_registration(args, render)
+    # the lighting the template's texture was fused under (its albedo is relative to it)
+    data, targets = _load_for_registration(args, read_template_lighting(args.template_dir), render)
     check_units(template, data.scan.V, data.scan.path)
     off = set(args.without or [])
     switches = Switches(color="color" not in off, depth="depth" not in off, normal="normal" not in off, mask="mask" not in off)
@@ -131,6 +136,7 @@ def cmd_register(args: argparse.Namespace) -> None:
                          render=render)
     texture_ref = os.path.relpath(Path(args.template_dir) / "texture.png", Path(args.output).parent)
     summary = {"subject": args.subject, "expression": args.expression, "switches": switches.__dict__,
+               "lighting": str(Path(args.template_dir) / LIGHTING_FILE),
                "seconds": round(time.perf_counter() - start, 2), **log.to_json()}
     write_registration(mesh, summary, args.output, texture_ref)
     print(f"register: {args.subject}/{args.expression} done in {summary['seconds']} s ({len(mesh.V)} vertices)", flush=True)
@@ -175,6 +181,33 @@ def cmd_metrics(args: argparse.Namespace) -> None:
         template_expression=args.template_expression, settings=settings, render=_renderer(args))
     write_json(args.output, result)
     print(f"metrics: {args.subject}/{args.method}/{args.expression}: {summary_line(result)} "
+          f"({time.perf_counter() - start:.1f} s)", flush=True)
+
+
+def cmd_oracle(args: argparse.Namespace) -> None:
+    from gpja.data.source import DataSource
+    from gpja.io import write_json
+    from gpja.metrics.oracle import evaluate_oracle
+
+    start = time.perf_counter()
+    result = evaluate_oracle(DataSource.from_args(args), args.ground_truth_root, args.subject, args.expression,
+                             targets_path=args.targets, out_dir=args.output_dir, supersample=args.supersample,
+                             render=_renderer(args))
+    write_json(args.output, result)
+    p = result["photometric"]
+    print(f"oracle: {args.subject}/{args.expression}: PSNR {p['psnr']:.2f} dB, SSIM {p['ssim']:.4f}, "
+          f"LPIPS {p['lpips']:.4f} ({time.perf_counter() - start:.1f} s)", flush=True)
+
+
+def cmd_texture_quality(args: argparse.Namespace) -> None:
+    from gpja.metrics.texture_quality import texture_quality_files
+
+    start = time.perf_counter()
+    out = texture_quality_files(args.template_dir, args.scans_root, args.ground_truth_root, args.subject,
+                                args.template_expression, args.output, args.error_image)
+    parts = ", ".join(f"{k} PSNR {out[k]['psnr']:.2f} dB SSIM {out[k]['ssim']:.4f} ({out[k]['texels']} texels)"
+                      for k in ("observed", "unobserved") if out[k]["psnr"] is not None)
+    print(f"texture-quality: {args.subject}: {parts}; gain {', '.join(f'{g:.3f}' for g in out['gain'])} "
           f"({time.perf_counter() - start:.1f} s)", flush=True)
 
 
@@ -250,10 +283,11 @@ def _add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
 
 
 def _add_registration_args(p: argparse.ArgumentParser) -> None:
-    """The options of the steps that fit a mesh to one expression's images and scan (template, register)."""
+    """The options of the steps that fit a mesh to one expression's images and scan (template, register).
+
+    They read the capture only: no option names a ground truth (tests/test_no_oracle.py)."""
     _add_expression_args(p)
     _add_data_args(p)
-    p.add_argument("--ground-truth-root", default=None, help="synthetic ground truth (for the SH lighting)")
     p.add_argument("--targets", required=True, help="the expression's scan targets .npz (rendered if missing)")
     p.add_argument("--settings", required=True, help="JSON: lambdas, iterations, refine_factor, lr_fraction, ...")
     _add_backend_arg(p)
@@ -311,6 +345,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("template", help="build a subject's textured template from its mouth-open expression")
     _add_registration_args(p)
+    p.add_argument("--lighting", choices=["estimate", "uniform"], default="estimate",
+                   help="the texture's SH lighting: estimate = fitted to the images (gpja.register.lighting_estimate), "
+                        "uniform = white light of radiance 1 (the paper's FaceScape assumption); written to "
+                        "lighting.json, which every registration and photometric score uses")
     p.add_argument("--output-dir", required=True)
     p.set_defaults(func=cmd_template)
 
@@ -343,7 +381,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("metrics", help="score one method's mesh of one expression: geometry, photometry, correspondence")
     _add_expression_args(p, method="the method's name (recorded in the JSON)")
     _add_data_args(p)
-    p.add_argument("--ground-truth-root", default=None, help="synthetic ground truth (lighting, correspondence)")
+    p.add_argument("--ground-truth-root", default=None,
+                   help="synthetic ground truth (correspondence, the estimated lighting's error); the renders use the "
+                        "template's lighting.json")
     p.add_argument("--targets", default=None, help="the expression's scan targets .npz")
     p.add_argument("--mesh", required=True, help="the method's mesh .obj (template UVs for photometric metrics)")
     p.add_argument("--template-dir", required=True, help="the subject's template folder (shared texture)")
@@ -353,6 +393,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", required=True, help="metrics JSON")
     p.add_argument("--output-dir", required=True, help="per-vertex errors, renders and error images")
     p.set_defaults(func=cmd_metrics)
+
+    p = sub.add_parser("oracle", help="synthetic data: render the ground truth (scan, albedo, lighting) at the "
+                                      "reference cameras and score it like a method (Table 2's upper bound)")
+    _add_expression_args(p)
+    _add_data_args(p)
+    p.add_argument("--ground-truth-root", required=True, help="synthetic ground truth: {root}/{subject}/...")
+    p.add_argument("--targets", default=None, help="the expression's scan targets .npz (the head mask)")
+    p.add_argument("--supersample", type=int, default=None,
+                   help="samples per pixel along each axis (default: the generator's, from subject.json)")
+    _add_backend_arg(p)
+    p.add_argument("--output", required=True, help="metrics JSON (photometric part only)")
+    p.add_argument("--output-dir", required=True, help="per-view renders and error images")
+    p.set_defaults(func=cmd_oracle)
+
+    p = sub.add_parser("texture-quality", help="synthetic data: the template texture's PSNR/SSIM against the "
+                                               "ground-truth albedo (observed and unobserved texels)")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--template-dir", required=True, help="template.obj, texture.png (texture_observed.png)")
+    p.add_argument("--template-expression", default="3_mouth_stretch")
+    p.add_argument("--scans-root", required=True, help="synthetic scans (mm): {root}/{subject}/{expression}.ply")
+    p.add_argument("--ground-truth-root", required=True, help="synthetic ground truth: {root}/{subject}/...")
+    p.add_argument("--output", required=True, help="texture_quality.json")
+    p.add_argument("--error-image", required=True, help="PNG of the per-texel error")
+    p.set_defaults(func=cmd_texture_quality)
 
     from gpja.report.published import PUBLISHED_CHOICES
     from gpja.report.tables import TABLE_NAMES

@@ -20,8 +20,10 @@ from gpja.errors import InputError
 #: The constraints an ablation variant can switch off (paper Table 3), in table order.
 CONSTRAINTS = ("normal", "depth", "color", "mask")
 #: Kinds of method: the method under test, one of its ablation variants, a baseline run by the
-#: workflow, a mesh made by another tool and imported (``baselines.external``).
-KINDS = ("gpja", "ablation", "baseline", "imported")
+#: workflow, a mesh made by another tool and imported (``baselines.external``), and a reference that
+#: is no registration: a bound the methods are measured against (the oracle: the synthetic ground
+#: truth rendered and scored photometrically, ``gpja.metrics.oracle``; Table 2 only).
+KINDS = ("gpja", "ablation", "baseline", "imported", "reference")
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,7 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja", "GPJA", "gpja"),
     *(_ablation(c) for c in CONSTRAINTS),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),
+    Method("oracle", "Oracle (ground truth)", "reference"),
 ]}
 
 

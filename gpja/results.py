@@ -9,7 +9,8 @@ rules and the readers cannot disagree about a path.
     results/{dataset}/{subject}/data/{expression}.json         check_expression summary
     results/{dataset}/{subject}/targets/{expression}.npz|.png  scan depth/normal/coverage targets
     results/{dataset}/{subject}/template/                      template.obj|.mtl, texture.png, mouth_mask.png,
-                                                               template.json, stages/
+                                                               template.json, lighting.json,
+                                                               texture_observed.png, stages/
     results/{dataset}/{subject}/{method}/{expression}.obj|.json   a method's mesh and its log
     results/{dataset}/{subject}/{method}/metrics/{expression}.json (+ folder of per-vertex errors, renders)
     results/{dataset}/{subject}/contact_sheet.png, all.done
@@ -31,7 +32,16 @@ if TYPE_CHECKING:  # the mesh and image readers load on use: the Snakefile impor
     from gpja.mesh import TexturedMesh
 
 #: The files of a template folder (``Layout.template_dir``).
-TEMPLATE_FILES = ("template.obj", "template.mtl", "texture.png", "mouth_mask.png", "template.json")
+TEMPLATE_FILES = ("template.obj", "template.mtl", "texture.png", "mouth_mask.png", "template.json", "lighting.json",
+                  "texture_observed.png")
+#: The template's mask of observed texels: 255 = at least one view saw the texel, 0 = filled (``gpja.register.template``).
+OBSERVED_TEXELS_FILE = "texture_observed.png"
+#: The template's SH lighting (:func:`read_template_lighting`, :func:`lighting_record`): what every registration
+#: and every photometric score renders with, since the texture's albedo is relative to it.
+LIGHTING_FILE = "lighting.json"
+#: Where a template's lighting came from: fitted to its images (``gpja.register.lighting_estimate``) or the
+#: paper's uniform white light (``gpja.lighting.uniform_sh(1.0)``); config ``registration.lighting``.
+LIGHTING_SOURCES = ("estimated", "uniform")
 #: Formats every table is written in.
 TABLE_FORMATS = ("csv", "md", "tex")
 #: Formats every figure is written in (the PNG goes into the HTML report).
@@ -177,6 +187,51 @@ def read_template(template_dir: str | Path) -> "tuple[TexturedMesh, np.ndarray]"
         raise InputError(d / "template.obj", "a template needs texture coordinates and a texture image")
     mask = read_image(d / "mouth_mask.png", mode="L")
     return mesh, mask
+
+
+def lighting_record(sh: "np.ndarray", source: str, convention: str) -> dict:
+    """The JSON of :data:`LIGHTING_FILE`: ``{"sh": 9x3 list, "convention": ..., "source": ...}``.
+
+    Args:
+        sh: (9, 3) float radiance SH coefficients (``gpja.lighting`` convention).
+        source: one of :data:`LIGHTING_SOURCES`.
+        convention: how the SH is to be read, in words (``gpja.register.lighting_estimate.CONVENTION``).
+    """
+    import numpy as np
+
+    sh = np.asarray(sh, dtype=np.float64)
+    if sh.shape != (9, 3) or not np.isfinite(sh).all():
+        raise ValueError(f"lighting: expected a finite (9, 3) SH array, got shape {sh.shape}")
+    if source not in LIGHTING_SOURCES:
+        raise ValueError(f"lighting source {source!r} is not one of {', '.join(LIGHTING_SOURCES)}")
+    return {"sh": sh.tolist(), "convention": convention, "source": source}
+
+
+def read_template_lighting(template_dir: str | Path) -> "np.ndarray":
+    """The SH lighting (9, 3) float64 of a template folder's :data:`LIGHTING_FILE`.
+
+    Raises:
+        InputError: the file is missing or corrupt, has no (9, 3) finite ``sh`` with a positive DC term, or
+            an unknown ``source``.
+    """
+    import numpy as np
+
+    from gpja.errors import InputError
+    from gpja.io import read_json
+
+    path = Path(template_dir) / LIGHTING_FILE
+    record = read_json(path)
+    if not isinstance(record, dict) or "sh" not in record:
+        raise InputError(path, "expected a JSON object with the key \"sh\" (9 x 3 SH coefficients)")
+    if record.get("source") not in LIGHTING_SOURCES:
+        raise InputError(path, f"source {record.get('source')!r} is not one of {', '.join(LIGHTING_SOURCES)}")
+    try:
+        sh = np.asarray(record["sh"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(path, "sh is not a 9 x 3 array of numbers") from None
+    if sh.shape != (9, 3) or not np.isfinite(sh).all() or not (sh[0] > 0).all():
+        raise InputError(path, f"sh must be 9 x 3 finite numbers with a positive first row, got shape {sh.shape}")
+    return sh
 
 
 def write_registration(mesh: "TexturedMesh", log: dict, obj_path: str | Path, texture_ref: str) -> None:

@@ -131,6 +131,27 @@ def test_subject_target_schedules_only_that_subject(tmp_path):
     assert set(cfg["registration"]["ablations"]["variants"]) <= methods
 
 
+def test_reference_steps_and_their_outputs_are_in_the_ci_dag(tmp_path):
+    """Synthetic data: the texture quality, the oracle of every expression, the correspondence figure and the
+    tables that read them are scheduled; the oracle is one more method of the tables' step."""
+    work = copy_workflow(tmp_path)
+    cfg = yaml.safe_load((ROOT / "config/ci.yaml").read_text())
+    out = subprocess.run([*SNAKEMAKE, "-n", "--cores", "2", "--configfile", "config/ci.yaml", "--printshellcmds"],
+                         cwd=work, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    counts = dict(re.findall(r"^(\w+)\s+(\d+)\s*$", out.stdout, re.M))
+    n_subjects, n_expressions = len(cfg["subjects"]), len(cfg["expressions"])
+    assert int(counts["texture_quality"]) == int(counts["plot_correspondence_errors"]) == n_subjects
+    assert int(counts["oracle_metrics"]) == n_subjects * n_expressions
+    tables = re.search(r"gpja --threads 1 tables .*", out.stdout).group(0)
+    assert "--tables geometry photometric ablation correspondence correspondence_regions texture timing" in tables
+    assert re.search(r"--methods gpja nicp gpja-no_mask oracle\b", tables)
+    # the template figure waits for the texture's error image
+    assert re.search(r"figure template_stages .*", out.stdout)
+    report = re.search(r"rule plot_template_stages:\n(.*?)\n\n", out.stdout, re.S).group(1)
+    assert "texture_error.png" in report
+
+
 def test_invalid_config_stops_before_any_rule(tmp_path):
     work = copy_workflow(tmp_path)
     out = subprocess.run([*SNAKEMAKE, "-n", "--cores", "1", "--config", "dataset=bad/name"], cwd=work,
@@ -179,6 +200,13 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         assert nicp["method"] == "nicp" and nicp["photometric"]["psnr"] > 15.0  # NICP keeps the template's UVs
         details = work / f"results/{cfg['dataset']}/S01/gpja/metrics/{expression}"
         assert (details / "geometry_errors.npz").is_file() and (details / "render" / "0.png").is_file()
+        # by facial region, and the oracle above every method (nothing can beat the ground truth)
+        assert set(metrics["correspondence"]["regions"]) == {"mouth", "eyes", "nose", "brows", "face", "outer"}
+        oracle = json.loads((work / f"results/{cfg['dataset']}/S01/oracle/metrics/{expression}.json").read_text())
+        assert oracle["geometry"] is None and oracle["photometric"]["psnr"] > max(
+            metrics["photometric"]["psnr"], nicp["photometric"]["psnr"])
+    quality = json.loads((template_dir / "texture_quality.json").read_text())
+    assert quality["observed"]["psnr"] > 15.0 and (template_dir / "texture_error.png").is_file()
     for expression in cfg["expressions"]:
         with np.load(work / f"results/{cfg['dataset']}/S01/targets/{expression}.npz") as targets:
             size = cfg["synthetic"]["image_size"]
@@ -186,12 +214,14 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
             assert 0.05 < targets["coverage"].mean() < 0.9  # the head, not empty, not everything
             assert 400 < np.median(targets["depth"][targets["coverage"][..., 0] > 0.99]) < 800  # rig ~600 mm away
     tables = work / f"results/{cfg['dataset']}/tables"
-    for name in ("geometry", "photometric", "ablation", "correspondence", "timing"):
+    for name in ("geometry", "photometric", "ablation", "correspondence", "correspondence_regions", "texture",
+                 "timing"):
         for suffix in ("csv", "md", "tex"):
             assert (tables / f"{name}.{suffix}").is_file(), f"{name}.{suffix}"
+    assert "Oracle (ground truth)" in (tables / "photometric.md").read_text()
     figures = work / f"results/{cfg['dataset']}/figures"
-    for kind in ("template_stages", "geometric_errors", "photometric_errors", "closeups", "convergence",
-                 "ablation_mask"):
+    for kind in ("template_stages", "geometric_errors", "correspondence_errors", "photometric_errors", "closeups",
+                 "convergence", "ablation_mask"):
         for suffix in ("png", "pdf"):
             assert (figures / f"{kind}_S01.{suffix}").stat().st_size > 10_000, f"{kind}.{suffix}"
     report = (work / f"results/{cfg['dataset']}/report.html").read_text(errors="replace")

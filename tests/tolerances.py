@@ -67,3 +67,41 @@ NICP_BACK_OF_HEAD_MM = 6.0
 FIGURE_CENTRE_PX = 1e-6
 #: A constant per-vertex value interpolated by the renderer (float32 barycentrics).
 INTERPOLATED_CONSTANT = 1e-5
+
+# --- lighting estimate (gpja/register/lighting_estimate.py, gpja/metrics/lighting.py) ---
+#: SH recovered from exact synthetic samples (float64 normal equations, condition <= ~1e3), relative.
+SH_EXACT_RELATIVE = 1e-9
+#: SH recovered on a sphere whose constant albedo carries +-5% noise and 20% dark outliers (measured 0.5%), relative.
+SH_NOISY_RELATIVE = 0.02
+
+# --- texture fusion (gpja/render/uv_raster.py, gpja/register/texture_fill.py, gpja/register/texture_fusion.py) ---
+#: Barycentrics of texel centres just outside a UV triangle's float edge: the rasteriser snaps to 1/256 texel.
+UV_RASTER_BARY = 5e-3
+#: float32 push-pull of a constant image, and of texels of full weight, [0, 1] units.
+FILL_EXACT = 1e-5
+#: Push-pull across a 24-texel hole of a unit ramp over 64 texels vs the ramp itself (measured 0.050: the
+#: Gaussian pyramid is smooth, not harmonic), [0, 1] units.
+FILL_LINEAR_RAMP = 0.065
+#: Both copies of a seam after the seam pass, one side observed (measured 5e-4), [0, 1] units.
+FILL_SEAM_AGREEMENT = 0.005
+#: OpenCV's remap rounds sample positions to 1/32 pixel (INTER_TAB_SIZE), px.
+REMAP_POSITION_PX = 1.0 / 32.0
+#: Fused albedo of a linear texture on planes (one view affine, one perspective; remap rounding; measured
+#: 4e-6), max, [0, 1] units.
+FUSION_FLAT_ALBEDO = 1e-3
+#: Fused albedo of a smooth texture on a 96 px sphere under directional light, mean over observed texels
+#: (measured 0.002).
+FUSION_SPHERE_ALBEDO = 0.005
+#: The sphere rendered with its fused texture vs the references (measured 51.3 dB), dB.
+FUSION_RENDER_PSNR_DB = 45.0
+#: The fused sphere texture (64 texels, a colour field of 250 mm period) at both UV copies of every seam vertex,
+#: mean (measured 0.0086; the baked truth itself: 0.029), [0, 1] units.
+FUSION_SEAM_AGREEMENT = 0.015
+#: Template lighting estimated from a spotted sphere (scan normals, 96 px views) vs the truth, relative (DC-matched;
+#: measured 0.015: the estimator's ridge pulls the truth's band-2 term towards 0).
+TEMPLATE_LIGHTING_RELATIVE = 0.05
+#: The fused albedo of that sphere vs the truth after one per-channel scale, mean (measured 0.0044), [0, 1] units.
+TEMPLATE_ALBEDO_UP_TO_SCALE = 0.01
+#: Mean change of an (already exact) fused sphere texture by 30 refinement steps of lr 0.01 (measured 0.0035),
+#: [0, 1] units.
+TEMPLATE_REFINE_CHANGE = 0.01

@@ -26,6 +26,13 @@ any acceptable registration are kept; beyond it, the foot point stops standing
 for "the material point this vertex represents" (on a lip or a nostril, whose
 radius of curvature is a few mm, the projection from farther away can land on
 the other side). The fraction of vertices used is reported with the scores.
+
+By region: where the ground truth has the rest landmarks (``landmarks_rest``), every used vertex
+is labelled by the facial region of ``m_tpl(i)`` (:mod:`gpja.metrics.regions`: mouth, eyes, nose,
+brows, the rest of the face, ears/scalp/neck), and the scores gain ``regions.{region}.{median_mm,
+mean_mm, p95_mm, count}``. The labels are defined in rest space, so a vertex keeps its region in
+every expression, and they come from where the template vertex *is* (on the template expression's
+scan), not from where a method moved it.
 """
 from __future__ import annotations
 
@@ -38,6 +45,7 @@ from gpja.data.units import check_units
 from gpja.errors import InputError
 from gpja.io import read_npz, write_npz
 from gpja.mesh import TexturedMesh, read_obj
+from gpja.metrics.regions import REGIONS, UNLABELLED, check_landmarks, label_regions, region_statistics
 from gpja.surface import interpolate, prepare_surface
 
 #: The expression the synthetic subject's template was fitted to (DESIGN.md).
@@ -46,6 +54,8 @@ TEMPLATE_EXPRESSION = "3_mouth_stretch"
 DEFAULT_MAX_DISTANCE_MM = 2.0
 #: The ground-truth array of rest coordinates in each expression's ``.npz``.
 REST_COORDS_KEY = "scan_rest_coords"
+#: The ground-truth array of the 68 rest-space landmarks (the same in every expression's ``.npz``).
+LANDMARKS_REST_KEY = "landmarks_rest"
 
 
 def check_vertex_prefix(n_registered: int, n_template: int, source: str | Path) -> None:
@@ -98,7 +108,8 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
                          scan_expr: tuple[np.ndarray, np.ndarray], rest_expr: np.ndarray,
                          scan_tpl: tuple[np.ndarray, np.ndarray], rest_tpl: np.ndarray, *,
                          max_distance_mm: float = DEFAULT_MAX_DISTANCE_MM,
-                         mesh_source: str | Path = "registered mesh") -> dict:
+                         mesh_source: str | Path = "registered mesh",
+                         landmarks_rest: np.ndarray | None = None) -> dict:
     """Rest-space distance between what registered and template vertices stand for.
 
     Args:
@@ -109,11 +120,14 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
         scan_tpl, rest_tpl: the same for the template's expression.
         max_distance_mm: projection cap (module docstring).
         mesh_source: name of the registered mesh in error messages.
+        landmarks_rest: (68, 3) float64 rest-space landmarks, mm, or None: the per-region scores.
     Returns:
         dict: ``mean_mm``, ``median_mm``, ``p95_mm``, ``max_mm`` over used
         vertices; ``n_used``, ``n_template_vertices``, ``fraction_used``,
         ``max_distance_mm``; ``vertex_error_mm`` (n_template,) float64, NaN
-        where unused; ``vertex_used`` (n_template,) bool.
+        where unused; ``vertex_used`` (n_template,) bool; with landmarks, ``regions``
+        (:func:`gpja.metrics.regions.region_statistics`) and ``vertex_region`` (n_template,) int8
+        (index into :data:`gpja.metrics.regions.REGIONS`, ``UNLABELLED`` where unused).
     Raises:
         InputError: fewer registered vertices than template vertices, NaN
         positions, rest coordinates that do not match their scan, or no vertex
@@ -133,21 +147,38 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
     if not used.any():
         raise InputError(mesh_source, f"no template vertex lies within {max_distance_mm:g} mm of both scans "
                                       "(away from their boundaries): is the mesh in the scan's frame?")
-    error = np.linalg.norm(m_reg - m_tpl, axis=1)
+    error = np.where(used, np.linalg.norm(m_reg - m_tpl, axis=1), np.nan)
     e = error[used]
-    return {"mean_mm": float(e.mean()), "median_mm": float(np.median(e)), "p95_mm": float(np.percentile(e, 95)),
-            "max_mm": float(e.max()), "n_used": int(used.sum()), "n_template_vertices": len(V_template),
-            "fraction_used": float(used.mean()), "max_distance_mm": float(max_distance_mm),
-            "vertex_error_mm": np.where(used, error, np.nan), "vertex_used": used}
+    out = {"mean_mm": float(e.mean()), "median_mm": float(np.median(e)), "p95_mm": float(np.percentile(e, 95)),
+           "max_mm": float(e.max()), "n_used": int(used.sum()), "n_template_vertices": len(V_template),
+           "fraction_used": float(used.mean()), "max_distance_mm": float(max_distance_mm),
+           "vertex_error_mm": error, "vertex_used": used}
+    if landmarks_rest is not None:
+        regions = np.full(len(V_template), UNLABELLED, dtype=np.int8)
+        regions[used] = label_regions(m_tpl[used], landmarks_rest)
+        out.update(regions=region_statistics(error, regions), vertex_region=regions)
+    return out
+
+
+def ground_truth_path(ground_truth_root: str | Path, subject: str, expression: str) -> Path:
+    """``{ground_truth_root}/{subject}/{expression}.npz``."""
+    return Path(ground_truth_root) / str(subject) / f"{expression}.npz"
 
 
 def read_rest_coords(ground_truth_root: str | Path, subject: str, expression: str, n_scan_vertices: int) -> np.ndarray:
     """(n_scan_vertices, 3) float64 rest coordinates of an expression's scan vertices, mm."""
-    path = Path(ground_truth_root) / str(subject) / f"{expression}.npz"
+    path = ground_truth_path(ground_truth_root, subject, expression)
     arrays = read_npz(path)
     if REST_COORDS_KEY not in arrays:
         raise InputError(path, f"no {REST_COORDS_KEY!r} array (has: {', '.join(sorted(arrays)) or 'nothing'})")
     return check_rest_coords(arrays[REST_COORDS_KEY], n_scan_vertices, path)
+
+
+def read_landmarks_rest(ground_truth_root: str | Path, subject: str, expression: str) -> np.ndarray | None:
+    """(68, 3) float64 rest-space landmarks of an expression's ground truth, mm; None when it has none."""
+    path = ground_truth_path(ground_truth_root, subject, expression)
+    arrays = read_npz(path)
+    return check_landmarks(arrays[LANDMARKS_REST_KEY], path) if LANDMARKS_REST_KEY in arrays else None
 
 
 def correspondence_error_files(mesh_path: str | Path, template_path: str | Path, scans_root: str | Path,
@@ -162,11 +193,13 @@ def correspondence_error_files(mesh_path: str | Path, template_path: str | Path,
         template_path: the subject's template OBJ (fitted to ``template_expression``).
         scans_root: ``{scans_root}/{subject}/{expression}.ply`` (synthetic: already mm).
         ground_truth_root: ``{ground_truth_root}/{subject}/{expression}.npz``.
-        errors_path: where to write ``vertex_error_mm`` and ``vertex_used`` (``.npz``), or None.
+        errors_path: where to write ``vertex_error_mm`` and ``vertex_used`` (``.npz``; with the
+            template expression's ``landmarks_rest`` also ``vertex_region`` and ``region_names``), or None.
         max_distance_mm: projection cap (module docstring).
     Returns:
-        the scores of :func:`correspondence_error` without its arrays, plus the
-        file names, subject and expressions (JSON-serialisable).
+        the scores of :func:`correspondence_error` without its arrays (``regions`` when the
+        template expression's ground truth has ``landmarks_rest``), plus the file names, subject and
+        expressions (JSON-serialisable).
     Raises:
         InputError: missing or corrupt files, a ground truth whose row count is
         not its scan's vertex count, a mesh with fewer vertices than the template.
@@ -181,10 +214,13 @@ def correspondence_error_files(mesh_path: str | Path, template_path: str | Path,
     check_units(TexturedMesh(mesh.V, mesh.F), scan_e.V, scan_e.path)
     rest_e = read_rest_coords(ground_truth_root, subject, expression, len(scan_e.V))
     rest_t = read_rest_coords(ground_truth_root, subject, template_expression, len(scan_t.V))
+    landmarks = read_landmarks_rest(ground_truth_root, subject, template_expression)
     result = correspondence_error(mesh.V, template.V, (scan_e.V, scan_e.F), rest_e, (scan_t.V, scan_t.F), rest_t,
-                                  max_distance_mm=max_distance_mm, mesh_source=mesh_path)
+                                  max_distance_mm=max_distance_mm, mesh_source=mesh_path, landmarks_rest=landmarks)
     if errors_path is not None:
-        write_npz(errors_path, vertex_error_mm=result["vertex_error_mm"], vertex_used=result["vertex_used"])
+        labels = {} if landmarks is None else {"vertex_region": result["vertex_region"],
+                                               "region_names": np.array(REGIONS)}
+        write_npz(errors_path, vertex_error_mm=result["vertex_error_mm"], vertex_used=result["vertex_used"], **labels)
     out = {"mesh": str(mesh_path), "template": str(template_path), "subject": str(subject),
            "expression": expression, "template_expression": template_expression}
     out.update({k: v for k, v in result.items() if not isinstance(v, np.ndarray)})

@@ -18,6 +18,7 @@ from gpja.mesh import read_obj, referenced_texture
 from gpja.metrics import geometry as geo
 from gpja.metrics.correspondence import DEFAULT_MAX_DISTANCE_MM as CORRESPONDENCE_MAX_DISTANCE_MM
 from gpja.metrics.correspondence import TEMPLATE_EXPRESSION, correspondence_error_files
+from gpja.metrics.lighting import score_lighting
 from gpja.metrics.photometric import evaluate_photometric_files
 from gpja.settings import from_section
 
@@ -91,7 +92,7 @@ def score_photometry(request: MetricRequest, result: dict) -> dict | None:
     texture = referenced_texture(r.mesh_path) or r.template_dir / "texture.png"
     result["texture"] = str(texture)
     return evaluate_photometric_files(r.mesh_path, r.template_dir, r.source, r.subject, r.expression,
-                                      r.targets_path, ground_truth_root=r.ground_truth_root, out_dir=r.out_dir,
+                                      r.targets_path, out_dir=r.out_dir,
                                       texture_path=texture, render=r.render)
 
 
@@ -115,6 +116,7 @@ METRICS: dict[str, Callable[[MetricRequest, dict], dict | None]] = {
     "geometry": score_geometry,
     "photometric": score_photometry,
     "correspondence": score_correspondence,
+    "lighting": score_lighting,
 }
 
 
@@ -158,4 +160,7 @@ def summary_line(result: dict) -> str:
     c = result.get("correspondence")
     if c:
         parts.append(f"corr. mean {c['mean_mm']:.3f} mm")
+        mouth = ((c.get("regions") or {}).get("mouth") or {}).get("median_mm")
+        if mouth is not None:
+            parts.append(f"corr. mouth median {mouth:.3f} mm")
     return ", ".join(parts)

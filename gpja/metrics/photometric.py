@@ -7,8 +7,9 @@ aligned (paper, "Metrics" and Table 2).
 
 Definitions (the same for every method, so the scores are comparable):
     Render: ``gpja.render.render_views`` "color" pass (template texture x
-        Lambertian SH shading, the lighting of ``lighting_for``: the synthetic
-        ground truth, or uniform white light for FaceScape), antialiased,
+        Lambertian SH shading under the template's lighting, ``lighting.json``
+        of its folder: the texture's albedo is relative to that estimate, or
+        uniform white light; never the synthetic ground truth), antialiased,
         black background, clipped to [0, 1]. No back-face culling: z-buffer
         visibility is exact for open meshes too.
     Head mask: pixels the expression's *scan* covers, coverage >= 0.5 in the
@@ -291,7 +292,7 @@ def evaluate_photometric(mesh: TexturedMesh, texture: np.ndarray, cameras: Seque
         cameras: B undistorted cameras of one image size (H, W).
         images: (B, H, W, 3) float32 undistorted reference images in [0, 1].
         coverage: (B, H, W, 1) or (B, H, W) scan coverage in [0, 1] (``render_scan_targets``).
-        sh: (9, 3) SH lighting (``gpja.data.ground_truth.lighting_for``).
+        sh: (9, 3) SH lighting the texture was made under (``gpja.results.read_template_lighting``).
         out_dir: if given, writes ``render/{view}.png`` (the raw render) and ``l1/{view}.png``
             (the error image) there.
         mask: optional (B, H, W) or (H, W) bool user mask, intersected with the coverage mask.
@@ -315,18 +316,46 @@ def evaluate_photometric(mesh: TexturedMesh, texture: np.ndarray, cameras: Seque
         raise InputError("coverage", f"the head mask ({MASK_DEFINITION}) is empty in every view: "
                                      "the scan is not seen by these cameras")
     renders = render_with_texture(mesh, texture, cameras, sh, render)
+    return score_renders(renders, images, masks, names, out_dir, source)
 
+
+def write_view_images(out_dir: Path, names: Sequence[str], renders: np.ndarray, images: np.ndarray,
+                      masks: np.ndarray, per_view: list[dict]) -> None:
+    """Write each view's render and L1 error image (PNG, atomically); record their paths in ``per_view``."""
+    from gpja.io import write_image
+
+    for name, render, reference, view_mask, entry in zip(names, renders, images, masks, per_view):
+        write_image(out_dir / "render" / f"{name}.png", render)
+        write_image(out_dir / "l1" / f"{name}.png", l1_error_image(render, reference, view_mask))
+        entry.update(render=f"render/{name}.png", error_image=f"l1/{name}.png")
+
+
+def score_renders(renders: np.ndarray, images: np.ndarray, masks: np.ndarray, names: Sequence[str],
+                  out_dir: str | Path | None = None, source: str | Path = "") -> dict:
+    """The photometric protocol on ready-made renders: per-view PSNR, SSIM and LPIPS over the head mask,
+    reduced to unweighted means over the views whose mask is not empty. Every method, and the oracle, is
+    scored by this one function.
+
+    Args:
+        renders, images: (B, H, W, 3) float32 in [0, 1]. masks: (B, H, W) bool head masks (:func:`head_mask`).
+        names: B view names. out_dir: where ``render/{view}.png`` and ``l1/{view}.png`` go (None: not written).
+        source: what was rendered, named in warnings.
+    Returns:
+        JSON-able dict: ``psnr`` (dB), ``ssim``, ``lpips``, ``per_view`` (list of {view, psnr, ssim, lpips,
+        mask_pixels[, render, error_image]}), ``views``, ``image_size`` [H, W], ``mask_definition`` and the
+        settings used.
+    """
     per_view = []
-    for name, render, reference, view_mask in zip(names, renders, images, masks):
-        entry = {"view": name, "psnr": None, "ssim": None, "lpips": None, "mask_pixels": 0}
+    for name, view_render, reference, view_mask in zip(names, renders, images, masks):
+        entry = {"view": str(name), "psnr": None, "ssim": None, "lpips": None, "mask_pixels": 0}
         if view_mask.any():
-            entry.update(view_metrics(render, reference, view_mask))
+            entry.update(view_metrics(view_render, reference, view_mask))
         else:
             log.warning("%s view %s: the head mask is empty; the view is left out of the means", source, name)
         per_view.append(entry)
 
     if out_dir is not None:
-        write_view_images(Path(out_dir), names, renders, images, masks, per_view)
+        write_view_images(Path(out_dir), [str(n) for n in names], renders, images, masks, per_view)
     return {
         "psnr": _mean([v["psnr"] for v in per_view]),
         "ssim": _mean([v["ssim"] for v in per_view]),
@@ -344,21 +373,10 @@ def evaluate_photometric(mesh: TexturedMesh, texture: np.ndarray, cameras: Seque
     }
 
 
-def write_view_images(out_dir: Path, names: Sequence[str], renders: np.ndarray, images: np.ndarray,
-                      masks: np.ndarray, per_view: list[dict]) -> None:
-    """Write each view's render and L1 error image (PNG, atomically); record their paths in ``per_view``."""
-    from gpja.io import write_image
-
-    for name, render, reference, view_mask, entry in zip(names, renders, images, masks, per_view):
-        write_image(out_dir / "render" / f"{name}.png", render)
-        write_image(out_dir / "l1" / f"{name}.png", l1_error_image(render, reference, view_mask))
-        entry.update(render=f"render/{name}.png", error_image=f"l1/{name}.png")
-
-
 def evaluate_photometric_files(mesh_path: str | Path, template_dir: str | Path, source: "DataSource",
                                subject: str, expression: str, targets_path: str | Path | None,
-                               ground_truth_root: str | Path | None = None, out_dir: str | Path | None = None,
-                               texture_path: str | Path | None = None, render=None) -> dict:
+                               out_dir: str | Path | None = None, texture_path: str | Path | None = None,
+                               render=None, sh: np.ndarray | None = None) -> dict:
     """:func:`evaluate_photometric` of a registered mesh file against one expression's data.
 
     Args:
@@ -367,24 +385,26 @@ def evaluate_photometric_files(mesh_path: str | Path, template_dir: str | Path, 
         source: the dataset (images, scans, ``Rt_scale_dict.json``, views, image cache and size).
         targets_path: the expression's scan-targets ``.npz`` (reused, or rendered and written);
             None renders the coverage without caching.
-        ground_truth_root: synthetic ground truth (for its SH lighting); None = uniform light.
         out_dir: where the per-view renders and error images go (None: not written).
         texture_path: the texture to render with; None = the template's shared ``texture.png``
             (an imported mesh with its own UV layout brings its own texture).
         render: a backend's ``render_views`` (``gpja.render.renderer``) for the mesh's renders and,
             without a valid cache, the scan targets; None = the CPU renderer.
+        sh: (9, 3) SH lighting of the renders; None = the template's (``lighting.json`` of ``template_dir``,
+            the lighting its texture was fused under), the same for every method.
     Returns:
-        the dict of :func:`evaluate_photometric` plus ``mesh``, ``subject``, ``expression``.
+        the dict of :func:`evaluate_photometric` plus ``mesh``, ``subject``, ``expression`` and ``lighting``
+        (where the renders' SH came from).
     Raises:
         InputError: missing/corrupt files, a mesh without UVs, NaN vertices, an empty mesh or
             scan, a mesh and scan in different units, views of different sizes.
     """
     from gpja.data.facescape import expression_dir
-    from gpja.data.ground_truth import lighting_for
     from gpja.data.units import check_units
     from gpja.io import read_image
     from gpja.mesh import read_obj
     from gpja.render import render_scan_targets
+    from gpja.results import LIGHTING_FILE, read_template_lighting
 
     mesh = read_obj(mesh_path, load_texture=False)
     check_photometric_mesh(mesh, mesh_path)
@@ -398,7 +418,8 @@ def evaluate_photometric_files(mesh_path: str | Path, template_dir: str | Path, 
     targets = render_scan_targets(data.scan.V, data.scan.F, data.cameras, cache_path=targets_path, render=render)
     if float(targets["coverage"].max()) < COVERAGE_THRESHOLD:
         raise InputError(data.scan.path, "the scan covers no pixel of any selected view")
-    sh = lighting_for(subject, expression, ground_truth_root)
+    lighting = "given" if sh is not None else str(Path(template_dir) / LIGHTING_FILE)
+    sh = read_template_lighting(template_dir) if sh is None else np.asarray(sh, dtype=np.float64)
     result = evaluate_photometric(mesh, texture, data.cameras, np.stack(data.images), targets["coverage"], sh,
                                   out_dir, view_names=[v.name for v in data.views], source=mesh_path, render=render)
-    return {"mesh": str(mesh_path), "subject": str(subject), "expression": expression, **result}
+    return {"mesh": str(mesh_path), "subject": str(subject), "expression": expression, "lighting": lighting, **result}

@@ -47,10 +47,18 @@ def warn_on_holes(data: ExpressionData) -> None:
 
 
 def write_template(template: Template, out_dir: str | Path) -> None:
-    """Write template.obj/.mtl, texture.png, mouth_mask.png, template.json and stages/*.obj."""
+    """Write template.obj/.mtl, texture.png, mouth_mask.png, texture_observed.png (255 = a view saw
+    the texel, 0 = filled), lighting.json, template.json and stages/*.obj."""
+    from gpja.register.lighting_estimate import CONVENTION
+    from gpja.results import LIGHTING_FILE, OBSERVED_TEXELS_FILE, lighting_record
+
     out = Path(out_dir)
     write_obj(out / "template.obj", template.mesh, texture_name="texture.png")
     write_image(out / "mouth_mask.png", template.mouth_mask)
+    if template.observed is not None:
+        write_image(out / OBSERVED_TEXELS_FILE, np.where(template.observed, 255, 0).astype(np.uint8))
+    if template.lighting is not None:
+        write_json(out / LIGHTING_FILE, lighting_record(template.lighting, template.lighting_source, CONVENTION))
     for name, mesh in template.stages.items():
         write_obj(out / "stages" / f"{name}.obj", mesh, texture_name=f"{name}.png" if mesh.texture is not None else None)
     write_json(out / "template.json", template.log)

@@ -5,8 +5,11 @@
    and scale from the scan).
 2. It is fitted with depth-only GPJA (multiscale LargeSteps), ending densely
    tessellated.
-3. With the geometry fixed, the texture is reconstructed by gradient descent of
-   the colour constraint on the texture image.
+3. With the geometry fixed, the SH lighting is estimated from the images and
+   the fitted mesh's normals (``lighting_estimate.py``; or taken as given), and
+   the texture is fused from the views in texture space (``texture_fusion.py``,
+   beyond the paper) or, as in the paper, reconstructed by gradient descent of
+   the colour constraint on the texture image (``texture_method: optimise``).
 4. The dense mesh is decimated with pymeshlab's texture-preserving quadric edge
    collapse to the coarse template, which keeps the same texture map.
 The mouth mask B is the bust's mouth-pocket chart in UV space.
@@ -24,14 +27,27 @@ import torch
 import torch.nn.functional as nnf
 
 from gpja.errors import InputError
-from gpja.lighting import irradiance_over_pi
+from gpja.lighting import irradiance_over_pi, uniform_sh
 from gpja.mesh import TexturedMesh, read_obj, write_obj
 from gpja.register.bust import Bust, make_bust
 from gpja.register.bust_placement import place_bust
 from gpja.register.hra import ExpressionTargets, Switches
+from gpja.register.lighting_estimate import blurred_normals, estimate_sh, scan_samples
 from gpja.register.multiscale import Schedule, optimise
+from gpja.register.texture_fusion import (FULL_WEIGHT, FusionSettings, TextureObservations, ViewBuffers,
+                                          choose_texture_size, finish_texture, observe_texture, texel_albedo,
+                                          view_buffers)
 from gpja.render import Topology, render_views, sample_texture
 from gpja.settings import CONFIG_KEY, HIDDEN, from_section
+
+
+#: Texture methods: the fusion (beyond the paper; default) and the paper's gradient descent.
+TEXTURE_METHODS = ("fusion", "optimise")
+#: Lighting the texture's albedo is relative to (config ``registration.lighting``).
+LIGHTING_CHOICES = ("estimate", "uniform")
+#: After the lighting estimate, albedo and light are rescaled (they share one global scale) so that
+#: this quantile of the observed texels' brightest channel sits at :data:`ALBEDO_CEILING`.
+ALBEDO_QUANTILE, ALBEDO_CEILING = 0.995, 0.95
 
 
 @dataclass(frozen=True)
@@ -43,8 +59,18 @@ class TemplateSettings:
         schedule: the depth-only multiscale fit; read from the section's own ``lambdas``,
             ``iterations``, ``refine_factor``, ``lr_fraction`` and ``lr_decay`` keys (the colour
             constraint's ``color_pool`` and warm-up do not apply to a depth-only fit).
-        texture_size: side of the square texture image, texels.
-        texture_iterations, texture_lr: gradient descent of the colour constraint on the texture.
+        texture_method: ``fusion`` (multi-view fusion in texture space, ``texture_fusion.py``) or
+            ``optimise`` (the paper: gradient descent of the colour constraint on the texture).
+        texture_size: side of the square texture image, texels; with ``texture_size_from_images``
+            the largest size the fusion may pick.
+        texture_size_from_images: pick the size the images support (``choose_texture_size``);
+            false = always ``texture_size`` (the ``optimise`` method always uses ``texture_size``).
+        fusion: how the fusion weights and combines the views (``fusion_*`` keys).
+        texture_iterations, texture_lr: gradient descent of the colour constraint on the texture
+            (``optimise``; ``texture_lr`` also steps the refinement).
+        texture_refine_iterations: ``fusion`` only, beyond the paper: iterations of a refinement of
+            the fused texture by the colour constraint (0 = none).
+        texture_refine_smoothness: weight of the refinement's total-variation prior on its correction.
         template_faces: face count of the decimated template (paper: ~16K vertices, ~32K faces);
             config key ``faces``.
     """
@@ -52,9 +78,14 @@ class TemplateSettings:
     bust_edge_mm: float = 6.0
     schedule: Schedule = field(default_factory=lambda: Schedule(lambdas=(200.0, 120.0, 80.0), iterations=(150, 150, 150)),
                                metadata={HIDDEN: ("color_pool", "warmup_iterations")})
+    texture_method: str = "fusion"
     texture_size: int = 1024
+    texture_size_from_images: bool = True
+    fusion: FusionSettings = field(default_factory=FusionSettings)
     texture_iterations: int = 200
     texture_lr: float = 0.05
+    texture_refine_iterations: int = 0
+    texture_refine_smoothness: float = 0.5
     template_faces: int = field(default=32000, metadata={CONFIG_KEY: "faces"})
 
     #: ``TemplateSettings.from_config(section, source)``: from ``registration.template``, see gpja.settings.
@@ -63,16 +94,22 @@ class TemplateSettings:
     def __post_init__(self) -> None:
         if not float(self.bust_edge_mm) > 0:
             raise ValueError(f"bust_edge_mm must be > 0, got {self.bust_edge_mm}")
+        if self.texture_method not in TEXTURE_METHODS:
+            raise ValueError(f"texture_method must be one of {', '.join(TEXTURE_METHODS)}, got {self.texture_method!r}")
         for name, key in (("texture_size", "texture_size"), ("texture_iterations", "texture_iterations"),
                           ("template_faces", "faces")):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{key} must be >= 1, got {getattr(self, name)}")
         if not float(self.texture_lr) > 0:
             raise ValueError(f"texture_lr must be > 0, got {self.texture_lr}")
+        if int(self.texture_refine_iterations) < 0 or float(self.texture_refine_smoothness) < 0:
+            raise ValueError("texture_refine_iterations and texture_refine_smoothness must be >= 0, got "
+                             f"{self.texture_refine_iterations} and {self.texture_refine_smoothness}")
 
 
 def reconstruct_texture(mesh: TexturedMesh, targets: ExpressionTargets, size: int, iterations: int, lr: float,
-                        progress: Callable[[str], None] = print, render: Callable | None = None) -> np.ndarray:
+                        progress: Callable[[str], None] = print, render: Callable | None = None,
+                        init: np.ndarray | None = None, smoothness: float = 0.0) -> np.ndarray:
     """Texture image that best explains the reference images on a fixed mesh.
 
     Gradient descent of the colour constraint (L1, Lambertian SH shading) on
@@ -81,12 +118,19 @@ def reconstruct_texture(mesh: TexturedMesh, targets: ExpressionTargets, size: in
     gradients through the coarser levels (a plain texel grid leaves holes where
     the texture is finer than the images).
 
+    With ``init`` (the fused texture) it refines instead: the parameters are a
+    correction added to ``init``, and ``smoothness`` times the correction's
+    mean absolute difference between neighbouring texels (L1 total variation)
+    is added to the loss, so the correction cannot bring back texel-scale noise.
+
     Args:
         mesh: (fixed) geometry with UVs, mm.
         targets: cameras, reference images and lighting.
         size: texture side, texels. iterations, lr: Adam settings.
         render: a backend's ``render_views`` (``gpja.render.renderer``) for the one render of the
             mesh's normals and texture coordinates; None = the CPU renderer.
+        init: (size, size, 3) float32 texture to refine; None = the paper's fit from the mean colour.
+        smoothness: weight of the correction's total variation (with ``init``).
     Returns:
         (size, size, 3) float32 albedo in [0, 1], row 0 at the top (v = 1).
     """
@@ -103,14 +147,15 @@ def reconstruct_texture(mesh: TexturedMesh, targets: ExpressionTargets, size: in
         observed = targets.images.reshape(-1, 3)[out.pixels[hit]]
     if len(uv) == 0:
         raise InputError("template", "the fitted mesh covers no pixel of any view: cannot reconstruct a texture")
-    init = (observed / shading.clamp_min(1e-3)).clamp(0, 1).mean(0)
     levels = [size // 4, size // 2, size]
     params = [torch.zeros(s, s, 3, requires_grad=True) for s in levels]
-    with torch.no_grad():
-        params[0] += init
+    base = torch.zeros(size, size, 3) if init is None else torch.tensor(init, dtype=torch.float32)
+    if init is None:
+        with torch.no_grad():
+            params[0] += (observed / shading.clamp_min(1e-3)).clamp(0, 1).mean(0)
     opt = torch.optim.Adam(params, lr=lr)
 
-    def compose() -> torch.Tensor:
+    def correction() -> torch.Tensor:
         total = 0
         for p in params:
             up = p if p.shape[0] == size else nnf.interpolate(p.permute(2, 0, 1)[None], size=(size, size),
@@ -119,16 +164,18 @@ def reconstruct_texture(mesh: TexturedMesh, targets: ExpressionTargets, size: in
         return total
 
     for it in range(iterations):
-        texture = compose()
-        pred = sample_texture(texture, uv) * shading
+        delta = correction()
+        pred = sample_texture(base + delta, uv) * shading
         loss = (pred - observed).abs().mean()
+        if init is not None and smoothness > 0:
+            loss = loss + smoothness * ((delta[1:] - delta[:-1]).abs().mean() + (delta[:, 1:] - delta[:, :-1]).abs().mean())
         opt.zero_grad()
         loss.backward()
         opt.step()
         if (it + 1) % max(1, iterations // 4) == 0:
             progress(f"texture iter {it + 1}/{iterations}: colour L1 {loss.item():.4f}")
     with torch.no_grad():
-        return compose().clamp(0, 1).numpy().astype(np.float32)
+        return (base + correction()).clamp(0, 1).numpy().astype(np.float32)
 
 
 def decimate_with_texture(mesh: TexturedMesh, faces: int) -> TexturedMesh:
@@ -156,24 +203,169 @@ def decimate_with_texture(mesh: TexturedMesh, faces: int) -> TexturedMesh:
 
 @dataclass
 class Template:
-    """A subject's textured template and the stages that produced it."""
+    """A subject's textured template and the stages that produced it.
 
-    mesh: TexturedMesh          # coarse template with texture
-    mouth_mask: np.ndarray      # (T, T) float32, 0 = mouth interior
+    Attributes:
+        mesh: coarse template with its (T, T, 3) texture.
+        mouth_mask: (T, T) float32, 0 = mouth interior.
+        stages: name -> mesh of each stage (``bust``, ``fitted``, ``template``).
+        log: JSON-able record (fit log, seconds per stage, texture size, lighting).
+        observed: (T, T) bool, the views' colour makes the texel (the rest was filled from its chart).
+        lighting: (9, 3) float64 SH radiance (``gpja.lighting``) the texture's albedo is relative to.
+        lighting_source: ``"estimated"`` (from the images) or ``"uniform"`` (``gpja.results.LIGHTING_SOURCES``).
+    """
+
+    mesh: TexturedMesh
+    mouth_mask: np.ndarray
     stages: dict[str, TexturedMesh]
     log: dict
+    observed: np.ndarray | None = None
+    lighting: np.ndarray | None = None
+    lighting_source: str = "uniform"
+
+
+def _view_buffers(mesh: TexturedMesh, targets: ExpressionTargets, fusion: FusionSettings,
+                  render: Callable | None) -> ViewBuffers:
+    """The fusion's occlusion and feathering buffers from one depth render of the fitted mesh."""
+    render = render or render_views
+    with torch.no_grad():
+        out = render(torch.tensor(mesh.V, dtype=torch.float32), torch.from_numpy(mesh.F), targets.cameras, ("depth",),
+                     antialias_edges=False)
+    covered = out.dense("coverage")[..., 0].numpy() > 0.5
+    if not covered.any():
+        raise InputError("template", "the fitted mesh covers no pixel of any view: cannot reconstruct a texture")
+    depth = np.where(covered, out.dense("depth")[..., 0].numpy(), np.inf)
+    return view_buffers(depth, targets.cameras, fusion.fusion_feather_px, targets.coverage[..., 0].numpy(),
+                        fusion.fusion_off_scan_weight)
+
+
+#: The scan's normals take over from the fitted mesh's over this many pixels from the scan's edges (holes,
+#: silhouettes). Wider ramps soften the albedo's edge where the shading normal changes source, but bring
+#: the fitted mesh's shading errors back in: default data 37.86 / 37.85 / 37.64 / 37.20 dB for 1 / 4 / 8 / 16 px;
+#: held-out 256 px subjects lose 0.3-0.7 dB at 4 px.
+SCAN_NORMAL_RAMP_PX = 1.0
+
+
+def _scan_normal_images(targets: ExpressionTargets, fusion: FusionSettings) -> tuple[np.ndarray, np.ndarray]:
+    """(B, H, W, 3) the scan's normal images (blurred by ``fusion_normal_blur_px``) and (B, H, W) how much
+    to trust them: 0 off the scan, ramping to 1 over :data:`SCAN_NORMAL_RAMP_PX` from its edges."""
+    import cv2
+
+    coverage = targets.coverage[..., 0].numpy()
+    normal = targets.normal.numpy()
+    if fusion.fusion_normal_blur_px > 0:
+        normal = np.stack([blurred_normals(n, c, fusion.fusion_normal_blur_px) for n, c in zip(normal, coverage)])
+    trust = np.empty_like(coverage)
+    for b, c in enumerate(coverage):
+        inside = (c >= 0.5).astype(np.uint8)
+        trust[b] = np.clip(cv2.distanceTransform(inside, cv2.DIST_L2, 5) / SCAN_NORMAL_RAMP_PX, 0.0, 1.0)
+    return normal, trust
+
+
+def _estimate_lighting(targets: ExpressionTargets) -> np.ndarray:
+    """(9, 3) float64 SH lighting from the template expression's images and its scan's normals.
+
+    The constant-albedo robust fit of ``lighting_estimate`` on the pixels the scan covers
+    (``scan_samples``). The scan's normals, not the fitted mesh's: on the CI data (128 px views,
+    6K-vertex fit) 10-20% of the fitted mesh's pixel normals are more than 25 degrees off the
+    scan's, and the fit from them is 300% off the truth, from the scan's 6%.
+
+    No alternation with the fused albedo: the fused albedo is the fused colour divided by the
+    current shading at the same normals, so a refit with it returns the current lighting (up to
+    the fitted mesh's and the scan's normals differing, which made it worse on the CI data: 17%).
+    Albedo and light are separated only by a prior on the albedo; the constant-albedo fit with
+    robust rejection of what is not skin is that prior.
+    """
+    colors, normals, weights = scan_samples(targets)
+    return np.asarray(estimate_sh(colors, normals, weights=weights), dtype=np.float64)
+
+
+def _rescale(sh: np.ndarray, albedo: np.ndarray, obs: TextureObservations) -> tuple[np.ndarray, np.ndarray, float]:
+    """Move the shared albedo/light scale into the light when the observed albedo would clip above 1.
+
+    Only when the :data:`ALBEDO_QUANTILE` of the brightest channel exceeds :data:`ALBEDO_CEILING`:
+    the albedo is divided and the SH multiplied by the same factor (renders are unchanged).
+    Returns (sh, albedo, factor).
+    """
+    seen = obs.weight >= FULL_WEIGHT
+    if not seen.any():
+        return sh, albedo, 1.0
+    k = float(np.quantile(albedo[seen].max(axis=1), ALBEDO_QUANTILE)) / ALBEDO_CEILING
+    if not k > 1.0:  # fits already: keep the estimate's own scale convention (its DC term)
+        return sh, albedo, 1.0
+    return sh * k, (albedo / k).astype(np.float32), k
+
+
+def build_texture(mesh: TexturedMesh, targets: ExpressionTargets, settings: TemplateSettings, lighting: str = "estimate",
+                  progress: Callable[[str], None] = print, render: Callable | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The texture of the fitted mesh, which texels the views see, and the lighting it is relative to.
+
+    Args:
+        mesh: the fitted (dense) mesh with the bust's UVs, mm.
+        targets: the template expression's views and images (its ``sh`` is not used).
+        lighting: one of :data:`LIGHTING_CHOICES`: ``estimate`` = fitted to the images,
+            ``uniform`` = white light of radiance 1 (the paper's FaceScape assumption).
+        render: a backend's ``render_views``; None = the CPU renderer.
+    Returns:
+        texture (T, T, 3) float32 in [0, 1], observed (T, T) bool, sh (9, 3) float64, log dict.
+    """
+    t0 = time.perf_counter()
+    fusion = settings.fusion
+    buffers = _view_buffers(mesh, targets, fusion, render)
+    t_render = time.perf_counter()
+    size, footprint = settings.texture_size, None
+    if settings.texture_method == "fusion" and settings.texture_size_from_images:
+        size, footprint = choose_texture_size(mesh, targets.cameras, buffers, settings.texture_size,
+                                              fusion.fusion_min_cos)
+    t1 = time.perf_counter()
+    scan = _scan_normal_images(targets, fusion) if fusion.fusion_scan_normals else (None, None)
+    obs = observe_texture(mesh, targets.cameras, targets.images.numpy(), buffers, size, fusion, *scan)
+    t2 = time.perf_counter()
+    if lighting == "estimate":
+        sh = _estimate_lighting(targets)
+        sh, albedo, scale = _rescale(sh, texel_albedo(obs, sh), obs)
+    else:
+        sh, scale = uniform_sh(1.0), 1.0
+        albedo = texel_albedo(obs, sh)
+    t3 = time.perf_counter()
+    lit = ExpressionTargets(targets.cameras, targets.images, targets.depth, targets.normal, targets.coverage,
+                            torch.tensor(sh, dtype=torch.float32))
+    if settings.texture_method == "fusion":
+        texture, observed = finish_texture(obs, albedo)
+        if settings.texture_refine_iterations > 0:
+            texture = reconstruct_texture(mesh, lit, size, settings.texture_refine_iterations, settings.texture_lr,
+                                          progress, render=render, init=texture,
+                                          smoothness=settings.texture_refine_smoothness)
+    else:
+        texture = reconstruct_texture(mesh, lit, size, settings.texture_iterations, settings.texture_lr, progress,
+                                      render=render)
+        observed = obs.observed
+    t4 = time.perf_counter()
+    progress(f"template: {settings.texture_method} texture {size}x{size}, {observed.mean():.0%} of texels observed, "
+             f"{t4 - t0:.1f} s")
+    log = {"method": settings.texture_method, "size": int(size), "median_footprint_px": footprint,
+           "observed_fraction": float(observed.mean()), "albedo_scale": scale,
+           "seconds": {"render": t_render - t0, "size": t1 - t_render, "fusion": t2 - t1, "lighting": t3 - t2,
+                       "texture": t4 - t3}}
+    return texture, observed, sh, log
 
 
 def create_template(scan_V: np.ndarray, targets: ExpressionTargets, settings: TemplateSettings,
-                    progress: Callable[[str], None] = print, render: Callable | None = None) -> Template:
+                    progress: Callable[[str], None] = print, render: Callable | None = None,
+                    lighting: str = "estimate") -> Template:
     """Build a subject's template from its mouth-open expression.
 
     Args:
         scan_V: (n, 3) the mouth-open scan's vertices, mm (placement).
-        targets: that expression's views, reference images, scan targets and lighting.
+        targets: that expression's views, reference images and scan targets (its ``sh`` is not used).
         render: a backend's ``render_views`` (``gpja.render.renderer``) for every render of the fit and
             the texture reconstruction; None = the CPU renderer.
+        lighting: ``estimate`` (SH fitted to the images between the fit and the fusion) or
+            ``uniform`` (config ``registration.lighting``).
     """
+    if lighting not in LIGHTING_CHOICES:
+        raise InputError("registration.lighting", f"must be one of {', '.join(LIGHTING_CHOICES)}, got {lighting!r}")
     t0 = time.perf_counter()
     bust: Bust = place_bust(make_bust(target_edge_mm=settings.bust_edge_mm), scan_V)
     progress(f"template: bust placed ({len(bust.mesh.V)} vertices)")
@@ -182,14 +374,15 @@ def create_template(scan_V: np.ndarray, targets: ExpressionTargets, settings: Te
                                texture=dummy_tex, mask_texture=dummy_mask, render=render, progress=progress)
     t_fit = time.perf_counter()
     progress(f"template: depth-only fit done ({len(fitted.V)} vertices, {t_fit - t0:.1f} s)")
-    texture = reconstruct_texture(fitted, targets, settings.texture_size, settings.texture_iterations,
-                                  settings.texture_lr, progress, render=render)
+    texture, observed, sh, tex_log = build_texture(fitted, targets, settings, lighting, progress, render)
     t_tex = time.perf_counter()
     dense = TexturedMesh(fitted.V, fitted.F, fitted.UV, fitted.F_uv, texture)
     coarse = decimate_with_texture(dense, settings.template_faces)
     progress(f"template: decimated to {len(coarse.V)} vertices / {len(coarse.F)} faces")
     stages = {"bust": bust.mesh, "fitted": dense, "template": coarse}
+    source = "estimated" if lighting == "estimate" else "uniform"
     log = {"fit": fit_log.to_json(), "seconds": {"fit": t_fit - t0, "texture": t_tex - t_fit,
                                                   "decimate": time.perf_counter() - t_tex},
-           "vertices": {k: int(len(m.V)) for k, m in stages.items()}}
-    return Template(coarse, bust.mouth_mask(settings.texture_size), stages, log)
+           "vertices": {k: int(len(m.V)) for k, m in stages.items()}, "texture": tex_log,
+           "lighting": np.asarray(sh).tolist(), "lighting_source": source}
+    return Template(coarse, bust.mouth_mask(texture.shape[0]), stages, log, observed, np.asarray(sh, np.float64), source)

@@ -61,6 +61,25 @@ def new_grid(rows: int, cols: int, panel_in: float = 2.2):
     return fig, axes
 
 
+def read_vertex_values(path: str | Path, key: str, n: int, what: str) -> np.ndarray:
+    """(n,) float64 per-vertex values ``key`` of a metrics detail ``.npz`` (written by ``gpja metrics``).
+
+    Raises:
+        InputError: a missing or corrupt file, no such array, or not one value per vertex (``what``: "scan
+        errors" or "vertex errors", the mesh they belong to being named in the message).
+    """
+    from gpja.errors import InputError
+    from gpja.io import read_npz
+
+    arrays = read_npz(path)
+    if key not in arrays:
+        raise InputError(path, f"no {key!r} array (written by `gpja metrics`)")
+    values = np.asarray(arrays[key], dtype=np.float64)
+    if values.shape != (n,):
+        raise InputError(path, f"has {values.shape[0]} {what} but the mesh has {n} vertices; re-run the metrics step")
+    return values
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Cameras and renders of geometry
 

@@ -27,8 +27,12 @@ if TYPE_CHECKING:
 #: ``Figure.methods`` value: every method of the comparison (GPJA, the enabled baselines, imported meshes).
 COMPARED = "compared"
 #: What a figure can read besides the run's data: the subject's template (``template.obj``, ``texture.png``),
-#: the metrics JSONs (and their detail folders) or the registration logs of its methods and expressions.
-NEEDS = ("template", "metrics", "registration_logs")
+#: the metrics JSONs (and their detail folders) or the registration logs of its methods and expressions, and
+#: on synthetic data the texture's quality against the ground truth (``template/texture_quality.json`` and its
+#: error image; an input only where the run has ground truth).
+NEEDS = ("template", "metrics", "registration_logs", "texture_quality")
+#: The texture-quality files of a template folder (``gpja texture-quality``; gpja.metrics.texture_quality).
+TEXTURE_QUALITY_FILES = ("texture_quality.json", "texture_error.png")
 
 
 @dataclass(frozen=True)
@@ -129,6 +133,7 @@ class Figure:
             ablation variants among ``methods``).
         photometric: drawn only when ``metrics.photometric`` is on (it reads the photometric renders).
         needs: which of :data:`NEEDS` are its workflow inputs.
+        ground_truth: drawn only on synthetic data with its ground truth (it reads scores against it).
     """
 
     name: str
@@ -137,6 +142,7 @@ class Figure:
     ablation: bool = False
     photometric: bool = False
     needs: tuple[str, ...] = ("template", "metrics")
+    ground_truth: bool = False
 
     def __post_init__(self):
         unknown = set(self.needs) - set(NEEDS)
@@ -160,8 +166,11 @@ class Figure:
 
 #: Every figure, in the order the workflow lists them per subject.
 FIGURES: dict[str, Figure] = {f.name: f for f in [
-    Figure("template_stages", "gpja.report.figures_geometry:draw_template_stages", needs=("template",)),
+    Figure("template_stages", "gpja.report.figures_geometry:draw_template_stages",
+           needs=("template", "texture_quality")),
     Figure("geometric_errors", "gpja.report.figures_geometry:draw_geometric_errors", methods=COMPARED),
+    Figure("correspondence_errors", "gpja.report.figures_correspondence:draw_correspondence_errors",
+           methods=COMPARED, ground_truth=True),
     Figure("convergence", "gpja.report.figures_convergence:draw_convergence",
            needs=("template", "registration_logs")),
     Figure("photometric_errors", "gpja.report.figures_photometry:draw_photometric_errors", photometric=True),
@@ -174,13 +183,14 @@ FIGURES: dict[str, Figure] = {f.name: f for f in [
 
 
 def register_figure(name: str, *, methods: tuple[str, ...] | str = ("gpja",), ablation: bool = False,
-                    photometric: bool = False, needs: tuple[str, ...] = ("template", "metrics")):
+                    photometric: bool = False, needs: tuple[str, ...] = ("template", "metrics"),
+                    ground_truth: bool = False):
     """Decorator: add ``draw(request) -> Figure`` to :data:`FIGURES` under ``name`` (a new name only)."""
 
     def decorate(draw: Callable[[FigureRequest], Any]):
         if name in FIGURES:
             raise ValueError(f"figure {name!r} is already registered")
-        FIGURES[name] = Figure(name, draw, methods, ablation, photometric, tuple(needs))
+        FIGURES[name] = Figure(name, draw, methods, ablation, photometric, tuple(needs), ground_truth)
         return draw
 
     return decorate
@@ -231,6 +241,7 @@ class FigurePlan:
         ablation_subjects: the subjects they run on.
         ablation_expressions: the expressions they run on (those outside ``expressions`` are not run).
         photometric: ``metrics.photometric``.
+        ground_truth: the data is synthetic with its ground truth (``data.ground_truth_root``, no Rt_scale).
     """
 
     layout: Layout
@@ -240,6 +251,7 @@ class FigurePlan:
     ablation_subjects: tuple[str, ...] = ()
     ablation_expressions: tuple[str, ...] = ()
     photometric: bool = True
+    ground_truth: bool = False
 
     def methods(self, entry: Figure) -> list[str]:
         """The methods the figure draws in this configuration."""
@@ -253,7 +265,7 @@ class FigurePlan:
 
     def draws(self, entry: Figure, subject: str) -> bool:
         """Whether the configuration draws the figure for ``subject``: its methods are all produced there."""
-        if entry.photometric and not self.photometric:
+        if (entry.photometric and not self.photometric) or (entry.ground_truth and not self.ground_truth):
             return False
         produced = set(self.compared)
         if entry.ablation:
@@ -282,4 +294,6 @@ class FigurePlan:
             files += [self.layout.registration_log(subject, m, e) for m, e in pairs]
         if "metrics" in entry.needs:
             files += [self.layout.metrics(subject, m, e) for m, e in pairs]
+        if "texture_quality" in entry.needs and self.ground_truth:
+            files += [self.layout.template_file(subject, name) for name in TEXTURE_QUALITY_FILES]
         return [str(f) for f in files]

@@ -2,7 +2,8 @@
 
 - ``template_stages``: the template-creation pipeline (paper Fig. "template creation"): the genus-0 bust,
   the fitted dense mesh with its reconstructed texture, the decimated template, its texture map and the
-  mouth mask B (``{results}/{subject}/template/``).
+  mouth mask B (``{results}/{subject}/template/``); on synthetic data also the texture's error against the
+  ground-truth albedo (``texture_error.png`` of ``gpja texture-quality``, when it exists).
 - ``geometric_errors``: per expression and method, the scan rendered frontally and coloured by the
   distance of each scan vertex to the method's mesh (the paper's "point (of GT) to mesh" error), one
   shared colour bar in mm (``metrics/{expression}/geometry_errors.npz``).
@@ -14,15 +15,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from gpja.errors import InputError
-from gpja.io import read_image, read_npz
+from gpja.io import read_image, read_json
 from gpja.methods import label
+from gpja.metrics.texture_quality import ERROR_IMAGE_FILE, QUALITY_FILE
 from gpja.report.drawing import (
     HEATMAP_COLORMAP,
     crop_to_coverage,
     frontal_camera,
     heatmap_image,
     new_grid,
+    read_vertex_values,
     render_surface,
     set_title,
     shaded_image,
@@ -33,14 +35,7 @@ from gpja.report.figures import FigureRequest, RunFiles
 def scan_errors(files: RunFiles, subject: str, method: str, expression: str, n_scan: int) -> np.ndarray:
     """(n_scan,) float64 distance (mm) of every scan vertex to the method's mesh, from ``gpja metrics``."""
     path = files.layout.metrics_details(subject, method, expression) / "geometry_errors.npz"
-    errors = read_npz(path)
-    if "scan_vertex_error_mm" not in errors:
-        raise InputError(path, "no 'scan_vertex_error_mm' array (written by `gpja metrics`)")
-    values = np.asarray(errors["scan_vertex_error_mm"], dtype=np.float64)
-    if values.shape != (n_scan,):
-        raise InputError(path, f"has {values.shape[0]} scan errors but the scan has {n_scan} vertices; "
-                               "re-run the metrics step")
-    return values
+    return read_vertex_values(path, "scan_vertex_error_mm", n_scan, "scan errors")
 
 
 def draw_template_stages(request: FigureRequest):
@@ -53,9 +48,10 @@ def draw_template_stages(request: FigureRequest):
     template = read_obj(layout.template_file(subject, "template.obj"))
     texture = read_image(layout.template_file(subject, "texture.png"))
     mask = read_image(layout.template_file(subject, "mouth_mask.png"), mode="L")
+    error_path = layout.template_file(subject, ERROR_IMAGE_FILE)
     camera = frontal_camera(np.concatenate([fitted.V, bust.V]), settings.render_size)
     panels = [("(a) genus-0 bust", bust), ("(b) fitted, textured", fitted), ("(c) template", template)]
-    fig, axes = new_grid(1, 5, panel_in=2.6)
+    fig, axes = new_grid(1, 6 if error_path.is_file() else 5, panel_in=2.6)
     for ax, (title, mesh) in zip(axes[0], panels):
         r = render_surface(mesh.V, mesh.F, camera, uv=mesh.UV, uv_faces=mesh.F_uv, texture=mesh.texture,
                            render=request.render)
@@ -69,8 +65,24 @@ def draw_template_stages(request: FigureRequest):
     axes[0][4].set_title("mouth mask B (black: socket)", fontsize=8)
     for spine in axes[0][4].spines.values():
         spine.set_visible(True)
+    if error_path.is_file():
+        axes[0][5].imshow(read_image(error_path))
+        axes[0][5].set_title(texture_error_title(layout.template_file(subject, QUALITY_FILE)), fontsize=8)
     set_title(fig, f"Template creation, subject {subject}", fontsize=10)
     return fig
+
+
+def texture_error_title(quality_path) -> str:
+    """The title of the texture-error panel: what it shows and the PSNR over observed / unobserved texels."""
+    from gpja.metrics.photometric import ERROR_SCALE
+
+    title = f"texture error vs. true albedo\n(L1, 0-{ERROR_SCALE:g}; black: off scan)"
+    if not quality_path.is_file():
+        return title
+    quality = read_json(quality_path)
+    parts = [f"{name} {quality[name]['psnr']:.1f} dB" for name in ("observed", "unobserved")
+             if isinstance(quality.get(name), dict) and quality[name].get("psnr") is not None]
+    return title + "".join(f"\nPSNR {part}" for part in parts)  # one per line: the panel is narrow
 
 
 def draw_geometric_errors(request: FigureRequest):

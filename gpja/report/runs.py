@@ -13,6 +13,7 @@ from pathlib import Path
 
 from gpja.errors import InputError
 from gpja.io import read_json
+from gpja.metrics.regions import REGIONS
 from gpja.results import Layout
 
 #: The key of the mean over the subjects (of the per-subject means) in :func:`subject_stats`.
@@ -22,6 +23,8 @@ GEOMETRY_REQUIRED = ("chamfer_l1_mm", "mesh_to_scan_mm", "scan_to_mesh_mm", "nor
 PHOTOMETRIC_KEYS = ("psnr", "ssim", "lpips")
 CORRESPONDENCE_KEYS = ("mean_mm", "median_mm", "p95_mm")
 CORRESPONDENCE_NAMES = tuple(f"correspondence_{k}" for k in CORRESPONDENCE_KEYS)
+#: The per-region correspondence scores the tables read (``correspondence.regions.{region}.{key}``).
+REGION_KEYS = ("median_mm", "mean_mm")
 
 
 def read_required_json(path: str | Path, what: str) -> dict:
@@ -40,9 +43,25 @@ def is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def is_reference_record(record: dict) -> bool:
+    """Whether a metrics JSON is a reference's (``gpja.methods`` kind ``reference``, e.g. the oracle): scored
+    photometrically only, without geometry."""
+    from gpja.methods import method
+
+    return isinstance(record.get("method"), str) and method(record["method"]).kind == "reference"
+
+
 def check_metrics_record(path: str | Path, record: dict) -> None:
-    """Raise :class:`InputError` naming ``path`` when a metrics JSON lacks a score the tables read."""
+    """Raise :class:`InputError` naming ``path`` when a metrics JSON lacks a score the tables read.
+
+    A reference's JSON (:func:`is_reference_record`) has no geometry but must have the photometric scores.
+    """
     geometry = record.get("geometry")
+    if is_reference_record(record) and geometry is None:
+        part = record.get("photometric")
+        if not (isinstance(part, dict) and all(is_number(part.get(k)) for k in PHOTOMETRIC_KEYS)):
+            raise InputError(path, f"a reference's metrics need photometric numbers {', '.join(PHOTOMETRIC_KEYS)}")
+        return
     if not isinstance(geometry, dict):
         raise InputError(path, "no 'geometry' section (not a `gpja metrics` JSON?)")
     for key in GEOMETRY_REQUIRED:
@@ -67,21 +86,39 @@ def metric_family(name: str) -> str:
     return name.split("@", 1)[0]
 
 
-def flat_metrics(record: dict) -> dict[str, float]:
-    """A metrics JSON's headline scores as ``{name: value}``.
+def flat_metrics(record: dict, regions: bool = False) -> dict[str, float]:
+    """A metrics JSON's headline scores as ``{name: value}`` (the regression check's names), and with
+    ``regions`` the per-region correspondence scores (the tables').
 
     Names: ``chamfer_l1_mm``, ``mesh_to_scan_mm``, ``scan_to_mesh_mm`` (mm), ``normal_consistency``,
     ``fscore@<t>`` (t in mm); with photometry ``psnr`` (dB), ``ssim``, ``lpips``; with synthetic ground
-    truth ``correspondence_mean_mm``, ``correspondence_median_mm``, ``correspondence_p95_mm`` (mm).
+    truth ``correspondence_mean_mm``, ``correspondence_median_mm``, ``correspondence_p95_mm`` (mm) and per
+    facial region ``correspondence_{region}_median_mm``, ``correspondence_{region}_mean_mm`` (mm; regions of
+    :data:`gpja.metrics.regions.REGIONS` with a scored vertex). A reference's record (the oracle) has no
+    geometry names.
     """
-    geometry = record["geometry"]
-    values = {key: float(geometry[key]) for key in GEOMETRY_REQUIRED}
-    values.update({fscore_name(t): float(v) for t, v in geometry["fscore"].items()})
+    values = {}
+    geometry = record.get("geometry")
+    if geometry is not None:
+        values.update({key: float(geometry[key]) for key in GEOMETRY_REQUIRED})
+        values.update({fscore_name(t): float(v) for t, v in geometry["fscore"].items()})
     if record.get("photometric"):
         values.update({key: float(record["photometric"][key]) for key in PHOTOMETRIC_KEYS})
     if record.get("correspondence"):
         values.update({f"correspondence_{k}": float(record["correspondence"][k]) for k in CORRESPONDENCE_KEYS})
+        per_region = (record["correspondence"].get("regions") or {}) if regions else {}
+        for region, stats in per_region.items():
+            values.update({region_name(region, k): float(stats[k]) for k in REGION_KEYS if is_number(stats.get(k))})
     return values
+
+
+def region_name(region: str, key: str) -> str:
+    """Flat name of a per-region correspondence score: ``correspondence_mouth_median_mm``."""
+    return f"correspondence_{region}_{key}"
+
+
+#: Every flat per-region name, region by region (:data:`gpja.metrics.regions.REGIONS` order).
+REGION_NAMES = tuple(region_name(r, k) for r in REGIONS for k in REGION_KEYS)
 
 
 @dataclass
@@ -106,7 +143,7 @@ def load_run(results: str | Path, subjects, methods, expressions) -> Run:
                 what = f"metrics of subject {subject}, method {method}, expression {expression} (`gpja metrics`)"
                 record = read_required_json(path, what)
                 check_metrics_record(path, record)
-                values[(subject, method, expression)] = flat_metrics(record)
+                values[(subject, method, expression)] = flat_metrics(record, regions=True)
                 paths[(subject, method, expression)] = path
     return Run(list(subjects), list(methods), list(expressions), values, paths)
 

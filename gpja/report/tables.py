@@ -13,12 +13,17 @@ Tables (file stem: content):
   ``Average`` (mean of the subject means) per method. Ablation variants are left
   to ``ablation``.
 - ``photometric``: Table 2: per subject and the average, PSNR (dB), SSIM and
-  LPIPS per method; a method without texture coordinates shows "–".
+  LPIPS per method; a method without texture coordinates shows "–". References
+  (``gpja.methods`` kind ``reference``: the oracle, the ground truth rendered by our
+  renderer) follow the methods as their own column group (CSV: rows with source
+  ``reference``); they are in no other table.
 - ``ablation``: Table 3: GPJA and each ablation variant present, means over
   every (subject, expression): the paper's geometric error (the scan-to-mesh,
   "point of GT to mesh", distance in mm), C.D. (mm), PSNR, SSIM, LPIPS.
 - ``correspondence`` (synthetic data only): mean/median/p95 of the
   correspondence error (mm) per subject and method, means over expressions.
+- ``correspondence_regions`` and ``texture`` (synthetic data only): the correspondence error by facial
+  region and the texture's quality against the ground-truth albedo (``gpja.report.tables_truth``).
 - ``timing``: per workflow step the median and max wall-clock seconds and the
   max RSS (MB) of its jobs (benchmark TSVs), and the registration logs' own
   optimisation seconds, per level for GPJA.
@@ -36,6 +41,7 @@ from pathlib import Path
 from gpja.errors import InputError
 from gpja.methods import label as method_label
 from gpja.methods import method
+from gpja.metrics.texture_quality import QUALITY_FILE
 from gpja.report.published import (
     PAPER_ABLATION_KEYS,
     PAPER_GEOMETRY_KEYS,
@@ -49,6 +55,7 @@ from gpja.report.runs import (
     AVERAGE,
     CORRESPONDENCE_NAMES,
     PHOTOMETRIC_KEYS,
+    REGION_NAMES,
     Run,
     count_values,
     fscore_names,
@@ -70,10 +77,17 @@ from gpja.report.table_model import (
     plural,
     subject_label,
 )
+from gpja.report.tables_truth import correspondence_regions_table, texture_table
 from gpja.report.timing import timing_table
+from gpja.results import Layout
 
 #: Every table ``gpja tables`` can write (file stems).
-TABLE_NAMES = ("geometry", "photometric", "ablation", "correspondence", "timing")
+TABLE_NAMES = ("geometry", "photometric", "ablation", "correspondence", "correspondence_regions", "texture", "timing")
+
+
+def is_reference(name: str) -> bool:
+    """Whether ``name`` is a reference, not a method (``gpja.methods`` kind ``reference``: the oracle)."""
+    return method(name).kind == "reference"
 
 
 def is_ablation(name: str) -> bool:
@@ -143,23 +157,34 @@ def geometry_table(run: Run, published: str | None = None) -> Table:
 # Table 2: photometry
 
 
-def photometric_table(run: Run, published: str | None = None) -> Table:
-    """Table 2: PSNR (dB), SSIM, LPIPS per subject (means over expressions) and their average, per method."""
+def photometric_table(run: Run, published: str | None = None, references: Run | None = None) -> Table:
+    """Table 2: PSNR (dB), SSIM, LPIPS per subject (means over expressions) and their average, per method;
+    then the references of ``references`` (the oracle), then the paper's numbers."""
     methods = comparison_methods(run.methods)
     names = list(PHOTOMETRIC_KEYS)
     stats = subject_stats(run, methods, names)
+    refs = list(references.methods) if references is not None else []
+    if refs:
+        stats.update(subject_stats(references, refs, names))
     paper = published_stats(PUBLISHED_PHOTOMETRIC, names, run.subjects) if published else {}
     lines = run.subjects + [AVERAGE]
-    rows = [[subject_label(s)] + [metric_cell(stats[(s, m)][n], n) for m in methods for n in names]
+    rows = [[subject_label(s)] + [metric_cell(stats[(s, m)][n], n) for m in methods + refs for n in names]
             + [metric_cell(per[s][n], n) for per in paper.values() for n in names] for s in lines]
-    groups = [(method_label(m), len(names)) for m in methods] + [(paper_label(label), len(names)) for label in paper]
+    groups = [(method_label(m), len(names)) for m in methods + refs]
+    groups += [(paper_label(label), len(names)) for label in paper]
     block = Block(headers=["Subject"] + [header(n) for _ in groups for n in names], rows=rows, groups=groups,
                   rules={len(run.subjects)})
     csv_header = ["subject", "method", "source", "expressions", *names]
     csv_rows = [[s, m, "reproduced", count_values(run, run.subjects if s == AVERAGE else [s], m, "psnr"),
                  *[stats[(s, m)][n] for n in names]] for m in methods for s in lines]
+    csv_rows += [[s, m, "reference", count_values(references, references.subjects if s == AVERAGE else [s], m, "psnr"),
+                  *[stats[(s, m)][n] for n in names]] for m in refs for s in lines]
     csv_rows += [[s, label, "paper", "", *[per[s][n] for n in names]] for label, per in paper.items() for s in lines]
     notes = [f"Means over the expressions; {AVERAGE}: the mean of the subject means."]
+    if refs:
+        notes.append(f"{', '.join(method_label(m) for m in refs)}: the expression's scan with the ground-truth albedo "
+                     "and SH lighting, rendered by our renderer at the reference cameras and scored like every method "
+                     "(gpja/metrics/oracle.py): the best any method can score here.")
     if any(stats[(AVERAGE, m)]["psnr"] is None for m in methods):
         notes.append(f"{DASH}: no photometric scores (the method's meshes have no texture coordinates).")
     if paper:
@@ -231,14 +256,19 @@ def correspondence_table(run: Run) -> Table:
 # Entry point
 
 
-def default_tables(run: Run, ablation_run: Run | None = None) -> list[str]:
+def default_tables(run: Run, ablation_run: Run | None = None, results: str | Path | None = None) -> list[str]:
     """The tables a run supports: geometry, photometric and timing; ablation with ablation variants;
-    correspondence when a metrics JSON has correspondence scores."""
+    correspondence when a metrics JSON has correspondence scores, correspondence_regions when one has
+    per-region scores; texture when every subject's template has its ``texture_quality.json``."""
     names = ["geometry", "photometric"]
     if any(is_ablation(m) for m in (ablation_run or run).methods):
         names.append("ablation")
     if any(CORRESPONDENCE_NAMES[0] in v for v in run.values.values()):
         names.append("correspondence")
+    if any(n in v for v in run.values.values() for n in REGION_NAMES):
+        names.append("correspondence_regions")
+    if results is not None and all(Layout(results).template_file(s, QUALITY_FILE).is_file() for s in run.subjects):
+        names.append("texture")
     return names + ["timing"]
 
 
@@ -256,6 +286,9 @@ def build_tables(results: str | Path, benchmarks: str | Path, subjects, methods,
     unknown = [n for n in names or [] if n not in TABLE_NAMES]
     if unknown:
         raise InputError("--tables", f"unknown table(s) {', '.join(unknown)}; choose from {', '.join(TABLE_NAMES)}")
+    references = [m for m in methods if is_reference(m)]
+    methods = [m for m in methods if not is_reference(m)]
+    reference_run = load_run(results, subjects, references, expressions) if references else None
     if ablation_subjects is None and ablation_expressions is None:
         run = ablation_run = load_run(results, subjects, methods, expressions)
     else:
@@ -267,8 +300,10 @@ def build_tables(results: str | Path, benchmarks: str | Path, subjects, methods,
         raise InputError("--tables", "the ablation table needs ablation variants (gpja-no_*) in --methods")
     extra = [ablation_run] if ablation_run is not None and ablation_run is not run else []
     builders = {"geometry": lambda: geometry_table(run, published),
-                "photometric": lambda: photometric_table(run, published),
+                "photometric": lambda: photometric_table(run, published, reference_run),
                 "ablation": lambda: ablation_table(ablation_run, published),
                 "correspondence": lambda: correspondence_table(run),
+                "correspondence_regions": lambda: correspondence_regions_table(run),
+                "texture": lambda: texture_table(results, run.subjects),
                 "timing": lambda: timing_table(results, benchmarks, run, extra)}
-    return [builders[name]() for name in (names or default_tables(run, ablation_run))]
+    return [builders[name]() for name in (names or default_tables(run, ablation_run, results))]

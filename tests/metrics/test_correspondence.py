@@ -133,6 +133,49 @@ def test_files_exact_registration_and_error_npz(tmp_path):
     assert arrays["vertex_error_mm"].shape == (len(P),) and arrays["vertex_used"].dtype == bool
 
 
+def test_files_break_the_error_down_by_facial_region(tmp_path):
+    from gpja.data.synthetic.head import HeadParams
+    from gpja.data.synthetic.landmarks import rest_landmark_guesses
+    from gpja.metrics.regions import REGIONS, UNLABELLED, label_regions
+
+    V, F = hemisphere()
+    P = points_on(V, F, np.flatnonzero(V[F].mean(axis=1)[:, 2] > 20.0))
+    template, registered = write_subject(tmp_path, V, F, P)
+    # landmarks in the hemisphere's rest frame: the synthetic head's, which sit on its front
+    L = rest_landmark_guesses(HeadParams())
+    gt = tmp_path / "gt" / SUBJECT / f"{TEMPLATE_EXPRESSION}.npz"
+    write_npz(gt, scan_rest_coords=V, landmarks_rest=L)
+    # the registration slides the points below y = -40 by 3 mm along the surface (in rest space: x)
+    moved = P.copy()
+    low = P[:, 1] < -40.0
+    moved[low] = P[low] + [3.0, 0.0, 0.0]
+    moved[low] *= 100.0 / np.linalg.norm(moved[low], axis=1, keepdims=True)
+    write_obj(registered, TexturedMesh(deform(moved, EXPRESSION), np.arange(len(P) - len(P) % 3).reshape(-1, 3)),
+              texture_name=None)
+    errors = tmp_path / "errors.npz"
+    out = run_files(tmp_path, template, registered, errors_path=errors)
+    json.dumps(out)
+    regions = out["regions"]
+    assert list(regions) == list(REGIONS)
+    assert sum(r["count"] for r in regions.values()) == out["n_used"]
+    arrays = read_npz(errors)
+    labels = arrays["vertex_region"]
+    assert list(arrays["region_names"]) == list(REGIONS) and labels.dtype == np.int8
+    np.testing.assert_array_equal(labels[arrays["vertex_used"]], label_regions(P, L)[arrays["vertex_used"]])
+    assert (labels[~arrays["vertex_used"]] == UNLABELLED).all()
+    # every region's scores are those of its vertices
+    e = arrays["vertex_error_mm"]
+    for k, name in enumerate(REGIONS):
+        mine = e[labels == k]
+        if mine.size:
+            assert regions[name]["median_mm"] == pytest.approx(np.median(mine))
+            assert regions[name]["mean_mm"] == pytest.approx(mine.mean())
+    # without landmarks_rest there is no breakdown
+    write_npz(gt, scan_rest_coords=V)
+    assert "regions" not in run_files(tmp_path, template, registered, errors_path=errors)
+    assert "vertex_region" not in read_npz(errors)
+
+
 def test_bad_inputs_name_the_file(tmp_path):
     V, F = hemisphere(subdivisions=3)
     P = points_on(V, F, np.flatnonzero(V[F].mean(axis=1)[:, 2] > 20.0))

@@ -10,13 +10,15 @@ from skimage.metrics import structural_similarity
 
 from gpja.data.source import DataSource
 from gpja.errors import InputError
-from gpja.io import read_image, write_image
+from gpja.io import read_image, write_image, write_json
+from gpja.lighting import uniform_sh
 from gpja.mesh import TexturedMesh, write_obj
 from gpja.metrics.photometric import (
     composite, evaluate_photometric, evaluate_photometric_files, head_mask, mask_crop, masked_psnr, masked_ssim,
     render_with_texture,
 )
 from gpja.render import render_scan_targets
+from gpja.results import LIGHTING_FILE, lighting_record
 from tests.conftest import EXPRESSION, SUBJECT
 from tests.render.scenes import ring_cameras, sphere, spherical_uv
 from tests.tolerances import PHOTOMETRIC_EXACT, SELF_RENDER_PSNR_DB, SSIM_VS_SKIMAGE
@@ -149,6 +151,7 @@ def files(facescape_root, tmp_path):
     """Arguments of evaluate_photometric_files for the conftest expression (a 100 mm sphere scan)."""
     template = tmp_path / "template"
     write_image(template / "texture.png", smooth_texture())
+    write_json(template / LIGHTING_FILE, lighting_record(uniform_sh(1.0), "uniform", "test"))
     return {"template_dir": template,
             "source": DataSource(images_root=facescape_root["images"], scans_root=facescape_root["scans"]),
             "subject": SUBJECT, "expression": EXPRESSION, "targets_path": tmp_path / "targets.npz"}
@@ -162,6 +165,26 @@ def test_files_entry_point(files, tmp_path):
     assert result["mesh"] == str(mesh_path) and result["views"] == 2
     assert all(np.isfinite([result["psnr"], result["ssim"], result["lpips"]]))
     assert (tmp_path / "out" / "l1" / "1.png").is_file() and files["targets_path"].is_file()
+
+
+def test_the_renders_use_the_template_lighting(files, tmp_path):
+    """Every method is rendered under the template's lighting.json (its texture is relative to it)."""
+    mesh_path = tmp_path / "registered.obj"
+    write_obj(mesh_path, textured_sphere(100.0), texture_name="texture.png")
+    one = {**files, "source": replace(files["source"], views=("0",))}
+    uniform = evaluate_photometric_files(mesh_path, **one, out_dir=tmp_path / "u")
+    assert uniform["lighting"] == str(files["template_dir"] / LIGHTING_FILE)
+    dim = uniform_sh(0.5)
+    write_json(files["template_dir"] / LIGHTING_FILE, lighting_record(dim, "estimated", "test"))
+    estimated = evaluate_photometric_files(mesh_path, **one, out_dir=tmp_path / "e")
+    np.testing.assert_allclose(read_image(tmp_path / "e/render/0.png"), 0.5 * read_image(tmp_path / "u/render/0.png"),
+                               atol=2.0 / 255)
+    given = evaluate_photometric_files(mesh_path, **one, sh=dim)
+    assert given["lighting"] == "given" and given["psnr"] == pytest.approx(estimated["psnr"])
+    (files["template_dir"] / LIGHTING_FILE).unlink()
+    with pytest.raises(InputError, match="not found") as err:
+        evaluate_photometric_files(mesh_path, **one)
+    assert err.value.path == str(files["template_dir"] / LIGHTING_FILE)
 
 
 def obj_text(V: np.ndarray, F: np.ndarray) -> str:

@@ -81,7 +81,7 @@ def test_create_template_passes_the_function_to_the_fit_and_the_texture(monkeypa
         seen["fit"] = render
         return start, type("Log", (), {"to_json": lambda self: {}})()
 
-    def fake_texture(fitted, targets, size, iterations, lr, progress, render=None):
+    def fake_texture(fitted, targets, size, iterations, lr, progress, render=None, **kwargs):
         seen["texture"] = render
         return np.full((size, size, 3), 0.5, np.float32)
 
@@ -89,7 +89,16 @@ def test_create_template_passes_the_function_to_the_fit_and_the_texture(monkeypa
     monkeypatch.setattr(template, "reconstruct_texture", fake_texture)
     monkeypatch.setattr(template, "place_bust", lambda bust, scan_V: bust)
     monkeypatch.setattr(template, "decimate_with_texture", lambda dense, faces: dense)
+    quiet = dict(progress=lambda m: None, lighting="uniform")
+    # the paper's texture optimisation gets the function
+    spy = Spy()
+    settings = template.TemplateSettings(bust_edge_mm=12.0, texture_size=16, texture_method="optimise")
+    template.create_template(mesh.V, targets, settings, render=spy, **quiet)
+    assert seen == {"fit": spy, "texture": spy} and spy.passes == [("depth",)]  # + the fusion's depth buffer
+    # the fusion renders its depth buffers with it, bit for bit as the default renderer
     spy = Spy()
     settings = template.TemplateSettings(bust_edge_mm=12.0, texture_size=16)
-    template.create_template(mesh.V, targets, settings, progress=lambda m: None, render=spy)
-    assert seen == {"fit": spy, "texture": spy}
+    fused = template.create_template(mesh.V, targets, settings, render=spy, **quiet)
+    default = template.create_template(mesh.V, targets, settings, **quiet)
+    assert spy.passes == [("depth",)]
+    np.testing.assert_array_equal(fused.mesh.texture, default.mesh.texture)

@@ -7,10 +7,12 @@ from gpja.mesh import TexturedMesh
 from gpja.register.hra import ExpressionTargets
 from gpja.register.multiscale import Schedule
 from gpja.register.remesh import refine_by_factor
-from gpja.register.template import TemplateSettings, create_template, decimate_with_texture, reconstruct_texture
+from gpja.register.template import (TemplateSettings, build_texture, create_template, decimate_with_texture,
+                                    reconstruct_texture)
 from gpja.render import Topology, render_scan_targets, render_views
 from tests.render.test_passes import surface_distance, tetrahedral_cameras
 from tests.register.test_remesh import seamed_sphere
+from tests.tolerances import TEMPLATE_ALBEDO_UP_TO_SCALE, TEMPLATE_LIGHTING_RELATIVE, TEMPLATE_REFINE_CHANGE
 
 #: Render of a reconstructed texture vs the references, dB over covered pixels.
 MIN_TEXTURE_PSNR_DB = 30.0
@@ -60,6 +62,86 @@ def test_decimation_keeps_the_texture_mapping():
     assert surface_distance(coarse.V, mesh.V, mesh.F).max() < 0.05 * mesh.edge_lengths().mean() * 10
 
 
+def spotted_texture(size=64):
+    """Skin-like constant albedo with a few dark spots (what the constant-albedo light fit must reject)."""
+    tex = np.empty((size, size, 3), np.float32)
+    tex[:] = (0.7, 0.5, 0.4)
+    tex[10:16, 10:20] = (0.2, 0.1, 0.1)
+    tex[40:44, 30:50] = (0.3, 0.15, 0.1)
+    return torch.tensor(tex)
+
+
+@pytest.fixture(scope="module")
+def lit_sphere():
+    from tests.register.test_texture_fusion import directional_sh
+
+    mesh = seamed_sphere(subdivisions=4)
+    cams = tetrahedral_cameras(96)
+    sh = directional_sh()
+    images, _ = render_color(mesh, spotted_texture(), cams, torch.tensor(sh, dtype=torch.float32))
+    t = render_scan_targets(mesh.V, mesh.F, cams)
+    # the targets' own lighting is a decoy: template creation must not use it
+    targets = ExpressionTargets(cams, images, t["depth"], t["normal"], t["coverage"], torch.zeros(9, 3))
+    return mesh, targets, sh
+
+
+def test_build_texture_estimates_the_lighting_and_fuses_the_albedo(lit_sphere):
+    from gpja.metrics.lighting import sh_relative_error
+
+    mesh, targets, sh = lit_sphere
+    settings = TemplateSettings(texture_size=64, texture_size_from_images=False)
+    texture, observed, estimate, log = build_texture(mesh, targets, settings, progress=lambda m: None)
+    assert texture.shape == (64, 64, 3) and observed.shape == (64, 64) and log["size"] == 64
+    assert sh_relative_error(estimate, sh) < TEMPLATE_LIGHTING_RELATIVE
+    # the albedo is the truth up to the light's per-channel scale
+    truth = spotted_texture().numpy()
+    ratio = np.median(texture[observed] / truth[observed], axis=0)
+    assert np.abs(texture[observed] / ratio - truth[observed]).mean() < TEMPLATE_ALBEDO_UP_TO_SCALE
+    np.testing.assert_allclose(estimate[0] * ratio, sh[0], rtol=TEMPLATE_LIGHTING_RELATIVE)
+
+
+def test_build_texture_with_uniform_light_and_with_the_papers_optimisation(lit_sphere):
+    mesh, targets, _ = lit_sphere
+    quiet = dict(progress=lambda m: None)
+    fused, observed, sh, _ = build_texture(mesh, targets, TemplateSettings(texture_size=64), "uniform", **quiet)
+    np.testing.assert_array_equal(sh, uniform_sh(1.0))
+    settings = TemplateSettings(texture_size=64, texture_method="optimise", texture_iterations=20)
+    optimised, observed_opt, _, log = build_texture(mesh, targets, settings, "uniform", **quiet)
+    assert log["method"] == "optimise" and optimised.shape == (64, 64, 3)
+    np.testing.assert_array_equal(observed_opt, observed)
+    with pytest.raises(ValueError):
+        TemplateSettings(texture_method="bake")
+
+
+def test_refinement_starts_from_the_fused_texture_and_keeps_it_smooth(lit_sphere):
+    mesh, targets, _ = lit_sphere
+    quiet = dict(progress=lambda m: None)
+    fused, observed, sh, _ = build_texture(mesh, targets, TemplateSettings(texture_size=64), **quiet)
+    lit = ExpressionTargets(targets.cameras, targets.images, targets.depth, targets.normal, targets.coverage,
+                            torch.tensor(sh, dtype=torch.float32))
+    # no iteration: the fused texture itself
+    np.testing.assert_array_equal(reconstruct_texture(mesh, lit, 64, 0, 0.01, init=fused, **quiet), fused)
+    refined = reconstruct_texture(mesh, lit, 64, 30, 0.01, init=fused, smoothness=0.5, **quiet)
+    assert np.abs(refined - fused)[observed].mean() < TEMPLATE_REFINE_CHANGE
+
+
+def test_written_template_has_its_observed_texels_and_lighting(tmp_path, lit_sphere):
+    from gpja.io import read_image, read_json
+    from gpja.register.pipeline import write_template
+    from gpja.register.template import Template
+    from gpja.results import read_template_lighting
+
+    mesh, _, sh = lit_sphere
+    observed = np.zeros((16, 16), bool)
+    observed[:8] = True
+    textured = TexturedMesh(mesh.V, mesh.F, mesh.UV, mesh.F_uv, np.full((16, 16, 3), 0.5, np.float32))
+    template = Template(textured, np.ones((16, 16), np.float32), {"template": textured}, {}, observed, sh, "estimated")
+    write_template(template, tmp_path)
+    np.testing.assert_array_equal(read_image(tmp_path / "texture_observed.png", mode="L"), observed.astype(np.float32))
+    np.testing.assert_allclose(read_template_lighting(tmp_path), sh)
+    assert read_json(tmp_path / "lighting.json")["source"] == "estimated"
+
+
 @pytest.mark.slow
 def test_create_template_on_a_synthetic_subject(tmp_path):
     from gpja.data.facescape import load_expression
@@ -82,4 +164,8 @@ def test_create_template_on_a_synthetic_subject(tmp_path):
     after = np.median(surface_distance(data.scan.V, fitted.V, fitted.F))
     assert after < before / 3, (before, after)
     assert abs(len(template.mesh.F) - 6000) <= 20
-    assert template.mouth_mask.shape == (128, 128) and 0 < template.mouth_mask.mean() < 1
+    size = template.mesh.texture.shape[0]
+    assert size <= 128 and template.mouth_mask.shape == (size, size) and 0 < template.mouth_mask.mean() < 1
+    assert template.observed.shape == (size, size) and 0.2 < template.observed.mean() < 1
+    assert template.lighting.shape == (9, 3) and template.lighting_source == "estimated"
+    assert template.log["lighting"] == template.lighting.tolist()

@@ -1,6 +1,20 @@
 # Stage 3, baselines: every enabled baseline of the registry (gpja/methods.py; NICP) from the same template,
 # and meshes imported from other tools.
 
+
+
+def baseline_landmark_inputs(wildcards):
+    """The landmark files a baseline's section names (NICP: ``landmarks`` of the expression and of the template
+    expression, or ``template_landmarks``); on synthetic data they are ground-truth files the synthesis writes."""
+    section = BASELINES.get(wildcards.method, {})
+    if not section.get("landmarks"):
+        return {}
+    names = {"subject": wildcards.subject, "expression": wildcards.expression}
+    template = section.get("template_landmarks") or section["landmarks"]
+    return {"landmarks": section["landmarks"].format(**names),
+            "template_landmarks": template.format(**{**names, "expression": TEMPLATE_EXPRESSION})}
+
+
 # only when the config enables a baseline (baselines.<name>.enabled)
 if BASELINE_METHODS:
 
@@ -9,6 +23,7 @@ if BASELINE_METHODS:
         ICP (Amberg et al. 2007): `gpja baseline --method {method}` with the config's baselines.{method}."""
         input:
             unpack(registration_inputs),
+            unpack(baseline_landmark_inputs),
             template=rules.build_template.output.obj,
             texture=rules.build_template.output.texture,
         output:

@@ -93,7 +93,7 @@ def synth_settings():
 
 
 def gt_args():
-    """Ground truth (synthetic data only): the capture's SH lighting comes from it."""
+    """Ground truth (synthetic data only): for the metrics and figures, never the template or registrations."""
     return f"--ground-truth-root {DATA['ground_truth_root']}" if DATA.get("ground_truth_root") else ""
 
 
@@ -136,6 +136,7 @@ def subject_targets(subject):
         targets.append(results_path("contact_sheet", subject))
     targets.append(results_path("template_file", subject, "template.obj"))
     targets += metrics_files(subject)
+    targets += reference_targets(subject)  # synthetic: texture quality, oracle (workflow/rules/reference.smk)
     targets += FIGURE_PLAN.outputs(subject)  # workflow/rules/figures.smk
     return targets
 

@@ -11,6 +11,7 @@ FIGURE_PLAN = FigurePlan(
     ablation_subjects=tuple(ABLATION_SUBJECTS),
     ablation_expressions=tuple(ABLATION_EXPRESSIONS),
     photometric=config["metrics"].get("photometric", True),
+    ground_truth=GROUND_TRUTH,  # workflow/rules/reference.smk
 )
 
 

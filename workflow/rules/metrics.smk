@@ -1,13 +1,26 @@
 # Stage 4, metrics: every method's mesh of every expression scored identically (one JSON each).
+# The synthetic ground truth is read here (and by the figures), never by the template or the registrations.
+
+
+def ground_truth_inputs(wildcards):
+    """The ground truth a score reads (synthetic data): the expression's and the template expression's
+    (correspondence is measured through the template's rest coordinates)."""
+    if not DATA.get("ground_truth_root"):
+        return {}
+    root = f"{DATA['ground_truth_root']}/{wildcards.subject}"
+    return {"ground_truth": f"{root}/{wildcards.expression}.npz",
+            "ground_truth_template": f"{root}/{TEMPLATE_EXPRESSION}.npz"}
 
 
 rule compute_metrics:
     """Geometry (Chamfer, N.C., F-scores), photometry (PSNR, SSIM, LPIPS) and correspondence of one mesh."""
     input:
         unpack(registration_inputs),
+        unpack(ground_truth_inputs),
         mesh=results_path("registration", "{subject}", "{method}", "{expression}"),
         template=results_path("template_file", "{subject}", "template.obj"),
         texture=results_path("template_file", "{subject}", "texture.png"),
+        lighting=results_path("template_file", "{subject}", "lighting.json"),
     output:
         json=results_path("metrics", "{subject}", "{method}", "{expression}"),
         details=directory(results_path("metrics_details", "{subject}", "{method}", "{expression}")),

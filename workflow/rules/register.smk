@@ -2,19 +2,17 @@
 
 
 def registration_inputs(wildcards, expression=None):
-    """An expression's data files and its cached scan targets."""
+    """An expression's data files and its cached scan targets: what a capture has (never the ground truth)."""
     expression = expression or wildcards.expression
     files = {"params": params_json(wildcards.subject, expression), "scan": scan_ply(wildcards.subject, expression),
              "targets": results_path("scan_targets", wildcards.subject, expression)}
     if DATA.get("rt_scale"):
         files["rt_scale"] = DATA["rt_scale"]
-    if DATA.get("ground_truth_root"):
-        files["ground_truth"] = f"{DATA['ground_truth_root']}/{wildcards.subject}/{expression}.npz"
     return files
 
 
 rule build_template:
-    """Fit the genus-0 bust to the mouth-open scan (depth only), reconstruct the texture, decimate."""
+    """Fit the genus-0 bust to the mouth-open scan (depth only), estimate the lighting, fuse the texture, decimate."""
     input:
         unpack(lambda wc: registration_inputs(wc, TEMPLATE_EXPRESSION)),
     output:
@@ -28,12 +26,14 @@ rule build_template:
         ),
         mask=results_path("template_file", "{subject}", "mouth_mask.png"),
         log_json=results_path("template_file", "{subject}", "template.json"),
+        lighting=results_path("template_file", "{subject}", "lighting.json"),
+        observed=results_path("template_file", "{subject}", "texture_observed.png"),
         stages=directory(results_path("template_file", "{subject}", "stages")),
     params:
         data=data_args(),
-        gt=gt_args(),
         cache=UNDISTORTED,
         settings=json_arg(REG["template"]),
+        lighting=REG.get("lighting", "estimate"),
         expression=TEMPLATE_EXPRESSION,
         out_dir=results_path("template_dir", "{subject}"),
         backend=BACKEND,
@@ -47,8 +47,9 @@ rule build_template:
         mem_mb=6000,
         runtime=30,
     shell:
-        "gpja --threads {threads} template --subject {wildcards.subject} --expression {params.expression} {params.data} {params.gt}"
-        " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings} --backend {params.backend}"
+        "gpja --threads {threads} template --subject {wildcards.subject} --expression {params.expression} {params.data}"
+        " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings} --lighting {params.lighting}"
+        " --backend {params.backend}"
         " --output-dir {params.out_dir} > {log} 2>&1"
 
 
@@ -59,6 +60,7 @@ rule register_expression:
         template=rules.build_template.output.obj,
         texture=rules.build_template.output.texture,
         mask=rules.build_template.output.mask,
+        lighting=rules.build_template.output.lighting,
     output:
         obj=results_path("registration", "{subject}", "{method}", "{expression}"),
         log_json=results_path("registration_log", "{subject}", "{method}", "{expression}"),
@@ -66,7 +68,6 @@ rule register_expression:
         method="|".join(REGISTRATION_METHODS),
     params:
         data=data_args(),
-        gt=gt_args(),
         cache=UNDISTORTED,
         settings=json_arg(REG["gpja"]),
         without=without_args,
@@ -84,6 +85,6 @@ rule register_expression:
         mem_mb=6000,
         runtime=30,
     shell:
-        "gpja --threads {threads} register --subject {wildcards.subject} --expression {wildcards.expression} {params.data} {params.gt}"
+        "gpja --threads {threads} register --subject {wildcards.subject} --expression {wildcards.expression} {params.data}"
         " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
         " --template-dir {params.template_dir} {params.without} --backend {params.backend} --output {output.obj} > {log} 2>&1"

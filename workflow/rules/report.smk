@@ -1,13 +1,15 @@
 # Stage 5, report: the paper's tables (geometry, photometry, ablations, correspondence, timing) from every metrics JSON,
 # and the HTML report of every table and figure.
 
-# tables this configuration can fill: ablations only with ablation variants, correspondence only with synthetic
-# ground truth (the condition under which `gpja metrics` scores it)
+# tables this configuration can fill: ablations only with ablation variants; correspondence (overall and by region)
+# and the texture's quality only with synthetic ground truth (GROUND_TRUTH, workflow/rules/reference.smk)
 TABLES = ["geometry", "photometric"]
 TABLES += ["ablation"] if ABLATION_VARIANTS else []
-TABLES += ["correspondence"] if DATA.get("ground_truth_root") and not DATA.get("rt_scale") else []
+TABLES += ["correspondence", "correspondence_regions", "texture"] if GROUND_TRUTH else []
 TABLES += ["timing"]
 TABLES_DIR = str(LAYOUT.tables_dir)
+# the methods the tables read: every method, then the references (the oracle's row of Table 2)
+TABLE_METHODS = METHODS + ([ORACLE] if GROUND_TRUTH else [])
 
 
 def table_outputs():
@@ -22,8 +24,9 @@ def table_outputs():
 
 
 def table_inputs(wildcards):
-    """Every metrics JSON, and the registration logs the timing table reads."""
-    return {"metrics": metrics_files(), "logs": [results_path("registration_log", s, m, e) for s, m, e in runs()]}
+    """Every metrics JSON, the registration logs the timing table reads and the references (synthetic data)."""
+    return {"metrics": metrics_files(), "logs": [results_path("registration_log", s, m, e) for s, m, e in runs()],
+            "references": [t for s in SUBJECTS for t in reference_targets(s)]}
 
 
 rule make_tables:
@@ -37,7 +40,7 @@ rule make_tables:
         benchmarks=str(LAYOUT.benchmarks_root),
         subjects=SUBJECTS,
         expressions=EXPRESSIONS,
-        methods=METHODS,
+        methods=TABLE_METHODS,
         tables=TABLES,
         published="--published facescape" if DATASET == "facescape" else "",
         ablation=(f"--ablation-subjects {shlex.join(ABLATION_SUBJECTS)} --ablation-expressions "
