@@ -34,7 +34,8 @@ NON_DEFAULT = {
                               "texture_refine_iterations": 10,
                               "texture_refine_smoothness": 2.0},
     "registration.gpja": {"lambdas": [40, 30, 20, 10], "iterations": [1, 2, 3, 4], "refine_factor": 3.0,
-                          "lr_fraction": 0.7, "lr_decay": 0.2, "color_pool": [4, 2, 1, 1], "warmup_iterations": 5},
+                          "lr_fraction": 0.7, "lr_decay": 0.2, "color_pool": [4, 2, 1, 1], "warmup_iterations": 5,
+                          "warmup_geometry": True, "optimizer_state": "per_constraint"},
     "baselines.nicp.settings": {"steps": [[0.5, 0.25, 3]], "gamma": 2.0, "max_distance_mm": 4.0,
                                 "max_normal_angle_deg": 45.0, "reject_boundary": False, "convergence_mm": 0.5,
                                 "rigid_iterations": 3, "rigid_keep": 0.5, "similarity": True},
@@ -203,7 +204,8 @@ def test_template_schedule_reads_the_flat_section_as_the_cli_did():
                                  schedule=Schedule(lambdas=(200.0, 120.0), iterations=(90, 90), refine_factor=2.5,
                                                    lr_fraction=1.0, lr_decay=0.3))
     assert Schedule.from_config(cfg["gpja"]) == Schedule(lambdas=(100.0, 50.0), iterations=(120, 120),
-                                                         lr_fraction=1.0, lr_decay=0.3, warmup_iterations=0)
+                                                         lr_fraction=1.0, lr_decay=0.3, warmup_iterations=0,
+                                                         optimizer_state="per_constraint")
 
 
 def test_the_template_section_offers_no_colour_keys():

@@ -22,7 +22,23 @@ tangential sliding, and the masked colour constraint charges nothing for
 socket pixels, so the mouth stays open in texture while the geometry
 matches. A short phase of the unmasked colour constraint alone, at the first
 level's resolution and lambda, first moves the lips onto the reference's
-lips; the paper's levels then run unchanged.
+lips; the paper's levels then run unchanged. Colour alone has directions it
+does not see or even rewards: it averages over the pixels the template covers,
+so pulling a badly matching part (a chin, a closed eye's lid) out of view lowers
+it, and with the clean fused texture it caved chins and lids in (S01
+``18_eye_closed``: Chamfer 0.9 mm). ``Schedule.warmup_geometry`` keeps depth and
+normals in the warm-up's rotation, each with its own optimiser state (below), so
+the surface stays on the scan while the unmasked colour moves the lips.
+
+One optimiser state per constraint (beyond the paper, ``Schedule.optimizer_state``):
+the uniform Adam normalises each step by the largest second moment of the
+gradients it has seen. Shared by the rotation, those moments are the depth
+constraint's (mm, silhouette charges of 10 mm a pixel), and the colour
+constraint's steps shrink to about its gradients' ratio to depth's (on the
+default data the colour loss hardly moves once depth joins). With one state
+per constraint, each step is normalised by its own constraint's gradients, so
+each constraint moves the surface by up to the learning rate whatever its
+units; the rotation then balances them as the paper intends.
 """
 from __future__ import annotations
 
@@ -47,6 +63,10 @@ class RegistrationDiverged(GpjaError):
     """The optimisation produced NaN or infinite values."""
 
 
+#: ``Schedule.optimizer_state``: one Adam for the whole rotation, or one per constraint.
+OPTIMIZER_STATES = ("shared", "per_constraint")
+
+
 @dataclass(frozen=True)
 class Schedule:
     """Levels of the multiscale optimisation.
@@ -64,6 +84,12 @@ class Schedule:
         warmup_iterations: iterations of the unmasked colour constraint alone before the first level,
             at its resolution and lambda (0 = none, the paper; module docstring). Only runs when the
             colour constraint is on.
+        warmup_geometry: the warm-up also runs the depth and normal constraints (those switched on),
+            so the unmasked colour slides the lips while the surface stays on the scan; false = colour
+            alone.
+        optimizer_state: "shared" = one uniform Adam for every constraint (the paper's text names one
+            optimiser); "per_constraint" = each constraint of the rotation steps with its own moments
+            (beyond the paper; module docstring).
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -73,6 +99,8 @@ class Schedule:
     lr_decay: float = 1.0
     color_pool: tuple[int, ...] | None = None
     warmup_iterations: int = 0
+    warmup_geometry: bool = False
+    optimizer_state: str = "shared"
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -91,6 +119,9 @@ class Schedule:
                              f"got {list(self.color_pool)}")
         if int(self.warmup_iterations) < 0:
             raise ValueError(f"warmup_iterations must be >= 0, got {self.warmup_iterations}")
+        if self.optimizer_state not in OPTIMIZER_STATES:
+            raise ValueError(f"optimizer_state must be one of {', '.join(OPTIMIZER_STATES)}, "
+                             f"got {self.optimizer_state!r}")
         if not float(self.refine_factor) > 1.0:
             raise ValueError(f"refine_factor must be > 1, got {self.refine_factor}")
         if not float(self.lr_fraction) > 0.0:
@@ -121,8 +152,11 @@ def mean_edge_length(mesh: TexturedMesh) -> float:
     return float(mesh.edge_lengths().mean())
 
 
-#: The warm-up's constraints: colour alone, the mouth socket not masked (module docstring).
-WARMUP_SWITCHES = Switches(color=True, depth=False, normal=False, mask=False)
+def warmup_switches(switches: Switches, schedule: Schedule) -> Switches:
+    """The warm-up's constraints: colour with the mouth socket not masked, alone or (``warmup_geometry``)
+    with the depth and normal constraints that ``switches`` has on (module docstring)."""
+    keep = bool(schedule.warmup_geometry)
+    return Switches(color=True, depth=keep and switches.depth, normal=keep and switches.normal, mask=False)
 
 
 def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches, schedule: Schedule, *,
@@ -150,7 +184,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
     if schedule.warmup_iterations and switches.color:
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
-                                     WARMUP_SWITCHES, schedule, 1, **common)
+                                     warmup_switches(switches, schedule), schedule, 1, **common)
         log.levels.append({"stage": "warmup", **entry})
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
         start = time.perf_counter()
@@ -163,6 +197,21 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         entry["setup_seconds"] = round(entry["setup_seconds"] + refine_s, 3)
         log.levels.append({"stage": "level", "level": level, **entry})
     return mesh, log
+
+
+def constraint_optimizers(param: LargeStepsParametrization, rotation: tuple[str, ...], lr: float,
+                          state: str) -> dict:
+    """The uniform Adam each constraint of ``rotation`` steps with: one shared, or one each.
+
+    Shared, the moments mix the constraints' gradients, so the one with the largest gradients (depth,
+    in mm) sets the normaliser and the others' steps shrink by their gradients' ratio to it. One each,
+    every constraint's step is normalised by its own gradients: each moves the surface by up to the
+    learning rate, whatever its units.
+    """
+    if state == "shared":
+        shared = param.optimizer(lr)
+        return {c: shared for c in rotation}
+    return {c: param.optimizer(lr) for c in rotation}
 
 
 def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switches: Switches,
@@ -179,7 +228,7 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
     rotation = switches.rotation()
     lr = schedule.lr_fraction * mean_edge_length(mesh)
     param = LargeStepsParametrization(mesh.V, mesh.F, lam)
-    opt = param.optimizer(lr)
+    optimizers = constraint_optimizers(param, rotation, lr, schedule.optimizer_state)
     topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
     uv = torch.tensor(mesh.UV, dtype=torch.float32)
     losses: dict[str, list[float]] = {c: [] for c in rotation}
@@ -189,6 +238,7 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
     setup_s = time.perf_counter() - start
     for it in range(n_iter):
         constraint = rotation[it % len(rotation)]
+        opt = optimizers[constraint]
         for group in opt.param_groups:
             group["lr"] = schedule.learning_rate(lr, it, n_iter)
         t0 = time.perf_counter()
