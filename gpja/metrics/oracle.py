@@ -10,8 +10,10 @@ the real gap.
 
 What it renders (the image formation of ``gpja.data.synthetic.capture.render_view``):
 
-* surface: the expression's scan (noise-free when ``synthetic.scan_noise_mm`` is 0), smooth
-  vertex normals (the renderer's ``normal`` pass);
+* surface: the expression's true surface: the scan's vertices put back where the generator's
+  expression map sends their rest points (``map_to_expression`` of ``scan_rest_coords``), so scan
+  noise (``synthetic.scan_noise_mm``) does not shade the oracle (it equals the scan when the noise is
+  0); the scan's triangles, smooth vertex normals (the renderer's ``normal`` pass);
 * albedo: the generator's procedural albedo (``evaluate_albedo``, tables from ``subject.json``'s
   identity) at each pixel's rest-space point, which the renderer interpolates from the scan's
   ``scan_rest_coords`` (the ``uv`` pass, two coordinates per render), times the expression's
@@ -60,14 +62,12 @@ SUBJECT_FILE = "subject.json"
 
 # --- the ground truth ------------------------------------------------------------------------------------------
 
-def subject_albedo(ground_truth_root: str | Path, subject: str) -> dict[str, np.ndarray]:
-    """The generator's albedo tables of a subject (``gpja.data.synthetic.albedo.albedo_tables``), rebuilt from
-    the identity in ``{ground_truth_root}/{subject}/subject.json``.
+def subject_identity(ground_truth_root: str | Path, subject: str):
+    """The generator's ``HeadParams`` of a subject, from the identity in ``{ground_truth_root}/{subject}/subject.json``.
 
     Raises:
         InputError: the file is missing or corrupt, or its identity is not the generator's.
     """
-    from gpja.data.synthetic.albedo import albedo_tables
     from gpja.data.synthetic.head import HeadParams
 
     path = Path(ground_truth_root) / str(subject) / SUBJECT_FILE
@@ -76,9 +76,25 @@ def subject_albedo(ground_truth_root: str | Path, subject: str) -> dict[str, np.
     if not isinstance(identity, dict):
         raise InputError(path, "no 'identity' object (not a synthetic subject's ground truth?)")
     try:
-        return albedo_tables(HeadParams(**identity))
+        return HeadParams(**identity)
     except TypeError as err:
         raise InputError(path, f"identity does not match the generator's parameters ({err})") from None
+
+
+def subject_albedo(ground_truth_root: str | Path, subject: str) -> dict[str, np.ndarray]:
+    """The generator's albedo tables of a subject (``gpja.data.synthetic.albedo.albedo_tables``), rebuilt from
+    its identity (:func:`subject_identity`)."""
+    from gpja.data.synthetic.albedo import albedo_tables
+
+    return albedo_tables(subject_identity(ground_truth_root, subject))
+
+
+def true_surface_vertices(ground_truth_root: str | Path, subject: str, expression: str, rest: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 the expression's true positions (mm) of the scan vertices whose rest points are ``rest``:
+    the generator's expression map of them, without the scan's noise."""
+    from gpja.data.synthetic.expressions import map_to_expression
+
+    return map_to_expression(rest, subject_identity(ground_truth_root, subject), expression)
 
 
 def generator_supersample(ground_truth_root: str | Path, subject: str) -> int:
@@ -214,13 +230,15 @@ def evaluate_oracle(source: "DataSource", ground_truth_root: str | Path, subject
     truth = expression_truth(ground_truth_root, subject, expression, len(data.scan.V))
     tables = subject_albedo(ground_truth_root, subject)
     S = generator_supersample(ground_truth_root, subject) if supersample is None else int(supersample)
-    renders = render_ground_truth(data.scan.V, data.scan.F, truth["rest"], lambda X: evaluate_albedo(X, tables),
+    V_true = true_surface_vertices(ground_truth_root, subject, expression, truth["rest"])
+    renders = render_ground_truth(V_true, data.scan.F, truth["rest"], lambda X: evaluate_albedo(X, tables),
                                   truth["sh"], truth["gain"], data.cameras, S, render)
     targets = render_scan_targets(data.scan.V, data.scan.F, data.cameras, cache_path=targets_path, render=render)
     scores = score_renders(renders, np.stack(data.images), targets["coverage"].numpy(),
                            [v.name for v in data.views], out_dir, source=data.scan.path)
     return {"subject": str(subject), "expression": expression, "method": ORACLE, "mesh": str(data.scan.path),
             "geometry": None, "photometric": scores, "correspondence": None,
-            "oracle": {"surface": str(data.scan.path), "albedo": "generator albedo per pixel at the interpolated "
+            "oracle": {"surface": f"{data.scan.path} vertices at their true positions (the generator's expression "
+                       "map of scan_rest_coords)", "albedo": "generator albedo per pixel at the interpolated "
                        "scan_rest_coords, times skin_gain", "lighting": "ground-truth SH", "supersample": S,
                        "skin_gain": truth["gain"].tolist()}}

@@ -127,3 +127,24 @@ def test_bad_inputs_name_the_problem(tmp_path, capsys):
             "--backend", "cpu", "--output", str(tmp_path / "o.json"), "--output-dir", str(tmp_path / "o")]
     assert main(argv) == 2
     assert "error:" in capsys.readouterr().err and not (tmp_path / "o.json").exists()
+
+
+def test_the_true_surface_is_the_noise_free_scan(tiny_subject, tmp_path):
+    from gpja.data.synthetic import SynthConfig, synthesize_subject
+    from gpja.metrics.oracle import expression_truth, true_surface_vertices
+
+    def true_and_scan(root):
+        data = DataSource(images_root=root / "images", scans_root=root / "scans").load(SUBJECT, EXPRESSION)
+        rest = expression_truth(root / "gt", SUBJECT, EXPRESSION, len(data.scan.V))["rest"]
+        return true_surface_vertices(root / "gt", SUBJECT, EXPRESSION, rest), data.scan.V
+
+    V_true, V_scan = true_and_scan(tiny_subject)
+    assert np.abs(V_true - V_scan).max() < 1e-3  # no noise: the scan itself (up to the PLY's float32)
+    noisy = tmp_path / "noisy"
+    cfg = SynthConfig(seed=3, image_size=32, n_views=2, supersample=1, scan_voxel_mm=1.5, render_voxel_mm=1.5,
+                      raw_variant=False, expressions=(EXPRESSION,), scan_noise_mm=0.5)
+    synthesize_subject(SUBJECT, 1, cfg, noisy / "images", noisy / "scans", noisy / "gt", noisy / "raw",
+                       noisy / "sheet.png", progress=lambda msg: None)
+    V_true, V_scan = true_and_scan(noisy)
+    offset = np.linalg.norm(V_true - V_scan, axis=1)
+    assert 0.25 < float(np.median(offset)) < 0.6  # |N(0, 0.5 mm)| has median 0.34 mm: the noise is undone
