@@ -182,7 +182,8 @@ def photometric_table(run: Run, published: str | None = None, references: Run | 
     csv_rows += [[s, label, "paper", "", *[per[s][n] for n in names]] for label, per in paper.items() for s in lines]
     notes = [f"Means over the expressions; {AVERAGE}: the mean of the subject means."]
     if refs:
-        notes.append(f"{', '.join(method_label(m) for m in refs)}: the expression's scan with the ground-truth albedo "
+        notes.append(f"{', '.join(method_label(m) for m in refs)}: the expression's scan at its true (noise-free) "
+                     "positions with the ground-truth albedo "
                      "and SH lighting, rendered by our renderer at the reference cameras and scored like every method "
                      "(gpja/metrics/oracle.py): the best any method can score here.")
     if any(stats[(AVERAGE, m)]["psnr"] is None for m in methods):
