@@ -45,14 +45,30 @@ def set_title(fig, text: str, fontsize: float = 10) -> None:
     fig.suptitle(text, fontsize=fontsize, y=1.0 + 0.35 / fig.get_figheight())
 
 
-def new_grid(rows: int, cols: int, panel_in: float = 2.2):
-    """A figure with a ``rows x cols`` grid of image axes (ticks off); returns (fig, axes[rows][cols])."""
+#: Height kept above a grid for its panels' titles (two lines), inches.
+TITLE_ROOM_IN = 0.4
+
+
+def new_grid(rows: int, cols: int, panel_in: float = 2.2, aspects=None, right_in: float = 0.0):
+    """A figure with a ``rows x cols`` grid of image axes (ticks off); returns (fig, axes[rows][cols]).
+
+    Args:
+        panel_in: height of a row (and width of a square cell), inches.
+        aspects: per column, the width / height of the images it shows; the cells take that shape, so
+            images that are not square fill them (None = square cells).
+        right_in: a strip this wide (inches) kept free right of the grid, e.g. for a colour bar.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(rows, cols, figsize=(panel_in * cols, panel_in * rows), squeeze=False)
+    widths = [1.0] * cols if aspects is None else [float(a) for a in aspects]
+    width = panel_in * sum(widths) + right_in
+    fig, axes = plt.subplots(rows, cols, figsize=(width, panel_in * rows), squeeze=False,
+                             gridspec_kw={"width_ratios": widths})
+    # room for the panels' titles only above the grid (set_title puts the figure's title above that)
+    fig.subplots_adjust(top=1.0 - TITLE_ROOM_IN / (panel_in * rows), right=1.0 - right_in / width)
     for ax in axes.ravel():
         ax.set_xticks([])
         ax.set_yticks([])

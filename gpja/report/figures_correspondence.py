@@ -31,8 +31,8 @@ from gpja.report.figures import FigureRequest, RunFiles
 UNSCORED_RGB = (0.75, 0.75, 0.75)
 #: Percentile of the scored errors at the top of the shared colour bar.
 TOP_PERCENTILE = 95.0
-#: Height of one panel, inches; the colour bar's strip on the right, inches.
-PANEL_IN, BAR_STRIP_IN = 2.2, 1.1
+#: Width of the colour bar's strip right of the panels, inches.
+BAR_STRIP_IN = 1.1
 
 
 def correspondence_vertex_errors(files: RunFiles, subject: str, method: str, expression: str,
@@ -84,15 +84,10 @@ def draw_correspondence_errors(request: FigureRequest):
     for key in errors:
         image, coverage = error_image(template.V, template.F, errors[key], camera, top)
         crops[key] = np.clip(crop_to_coverage([image], coverage)[0], 0, 1)
-    # cells as wide as the crops (a head is taller than wide) and a colour bar in its own strip, so
-    # the panels fill the figure (a bar taken from the panels' width left blank space above them)
+    # cells as wide as the crops (a head is taller than wide) and the colour bar in its own strip
     aspect = max(c.shape[1] / c.shape[0] for c in crops.values())
-    fig, axes = new_grid(len(expressions), len(methods))
-    panel_w, panel_h, bar_w = PANEL_IN * aspect, PANEL_IN, BAR_STRIP_IN
-    width = panel_w * len(methods) + bar_w + 0.4
-    fig.set_size_inches(width, panel_h * len(expressions) + 0.2)
-    fig.subplots_adjust(left=0.4 / width, right=(width - bar_w) / width, top=0.97, bottom=0.01,
-                        wspace=0.05, hspace=0.12)
+    fig, axes = new_grid(len(expressions), len(methods), aspects=[aspect] * len(methods), right_in=BAR_STRIP_IN)
+    fig.subplots_adjust(wspace=0.05, hspace=0.12)
     for i, expression in enumerate(expressions):
         for j, method in enumerate(methods):
             ax = axes[i][j]
@@ -109,7 +104,8 @@ def draw_correspondence_errors(request: FigureRequest):
             if j == 0:
                 ax.set_ylabel(expression, fontsize=8)
     mappable = matplotlib.cm.ScalarMappable(matplotlib.colors.Normalize(0.0, top), HEATMAP_COLORMAP)
-    cax = fig.add_axes(((width - bar_w + 0.15) / width, 0.15, 0.18 / width, 0.7))
+    width = fig.get_figwidth()
+    cax = fig.add_axes(((width - BAR_STRIP_IN + 0.15) / width, 0.15, 0.18 / width, 0.7))
     bar = fig.colorbar(mappable, cax=cax)
     bar.set_label(f"correspondence error (mm, clipped at {top:g}; grey: not scored)")
     set_title(fig, f"Correspondence error on the template, subject {subject}", fontsize=10)

@@ -156,7 +156,9 @@ def draw_closeups(request: FigureRequest):
     # boxes anchored on the template's mouth (the same head frame for every expression), not on the
     # registered mesh, whose socket may be misplaced: that is what the figure is to show
     _, centre = template_mouth(files, subject)
-    fig, axes = new_grid(len(expressions), 6, panel_in=1.9)
+    # cells shaped like the boxes (mm), so the crops fill them
+    aspects = [box[1] / box[2] for box in (EYES_BOX_MM, MOUTH_BOX_MM) for _ in range(3)]
+    fig, axes = new_grid(len(expressions), 6, panel_in=1.2, aspects=aspects)
     titles = ["eyes: reference", "eyes: render", "eyes: checkerboard", "mouth: reference", "mouth: render",
               "mouth: checkerboard"]
     for i, expression in enumerate(expressions):
