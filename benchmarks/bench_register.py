@@ -15,6 +15,12 @@ Presets:
            the data's resolution (512 x 512 for the default synthetic data).
   --settings '{...}' overrides either (same keys as the config section).
 
+Side by side (issue 15: a registration started from another expression's result must cost no more
+than one from the template): ``--compare-start results/synthetic/S01/gpja/13_lip_funneler.obj``
+runs, alternating ``--repeats`` times, the registration from the template (as before) and from that
+mesh with its stage meshes saved (as the workflow now runs it), and prints both and the ratio of
+their median times.
+
 Usage:
   python benchmarks/bench_register.py [--preset default|paper] [--subject S01] [--expression 1_neutral]
         [--data data/synthetic] [--results results/synthetic] [--settings JSON]
@@ -62,6 +68,9 @@ def main() -> None:
     parser.add_argument("--expression", default="1_neutral")
     parser.add_argument("--data", default="data/synthetic")
     parser.add_argument("--results", default="results/synthetic")
+    parser.add_argument("--compare-start", default=None,
+                        help="a registered .obj of another expression: time the template start against it")
+    parser.add_argument("--repeats", type=int, default=1, help="alternating runs of each start (--compare-start)")
     args = parser.parse_args()
 
     from gpja.data.source import DataSource
@@ -85,6 +94,9 @@ def main() -> None:
     # the lighting the template's texture was fused under (lighting.json), as `gpja register` reads it
     targets = expression_targets(data, targets_path, read_template_lighting(template_dir))
     template, mask = read_template(template_dir)
+    if args.compare_start:
+        compare_starts(args, template, mask, targets, schedule, data)
+        return
     start = time.perf_counter()
     mesh, log = register(template, mask, targets, schedule, Switches(), progress=lambda m: print(m, file=sys.stderr))
     seconds = time.perf_counter() - start
@@ -101,6 +113,33 @@ def main() -> None:
         "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F),
         "psnr_db": round(shared_texture_psnr(mesh, template.texture, targets), 2),
     }, indent=1))
+
+
+def compare_starts(args, template, mask, targets, schedule, data) -> None:
+    """Alternate the registration from the template and from ``--compare-start`` (stages saved); print JSON."""
+    import statistics
+    import tempfile
+
+    from gpja.mesh import read_obj
+    from gpja.register.hra import Switches
+    from gpja.register.pipeline import register, stage_writer, start_from
+
+    parent = start_from(template, read_obj(args.compare_start, load_texture=False), args.compare_start)
+    runs = {"template": [], "tree": []}
+    for _ in range(max(args.repeats, 1)):
+        for name, mesh0 in (("template", template), ("tree", parent)):
+            with tempfile.TemporaryDirectory() as tmp:
+                on_stage = stage_writer(tmp) if name == "tree" else None
+                t0 = time.perf_counter()
+                mesh, _ = register(mesh0, mask, targets, schedule, Switches(), on_stage=on_stage,
+                                   progress=lambda m: print(m, file=sys.stderr))
+                runs[name].append({"seconds": round(time.perf_counter() - t0, 2),
+                                   "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F)})
+    medians = {k: statistics.median(r["seconds"] for r in v) for k, v in runs.items()}
+    print(json.dumps({"benchmark": "register_start", "subject": args.subject, "expression": args.expression,
+                      "start_from": args.compare_start, "repeats": args.repeats, "runs": runs,
+                      "median_seconds": medians, "ratio_tree_to_template": round(medians["tree"] / medians["template"], 3),
+                      "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()}}, indent=1))
 
 
 if __name__ == "__main__":

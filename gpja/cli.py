@@ -125,6 +125,12 @@ def cmd_register(args: argparse.Namespace) -> None:
 
     schedule = Schedule.from_config(_settings(args.settings), "--settings")
     template, mask = read_template(args.template_dir)
+    start_mesh = template
+    if args.start_from:
+        from gpja.mesh import read_obj
+        from gpja.register.pipeline import start_from
+
+        start_mesh = start_from(template, read_obj(args.start_from, load_texture=False), args.start_from)
     render = _renderer(args)
     # the lighting the template's texture was fused under (its albedo is relative to it)
     data, targets = _load_for_registration(args, read_template_lighting(args.template_dir), render)
@@ -132,14 +138,36 @@ def cmd_register(args: argparse.Namespace) -> None:
     off = set(args.without or [])
     switches = Switches(color="color" not in off, depth="depth" not in off, normal="normal" not in off, mask="mask" not in off)
     start = time.perf_counter()
-    mesh, log = register(template, mask, targets, schedule, switches, progress=lambda m: print(m, flush=True),
-                         render=render)
+    on_stage = None
+    if args.stages_dir:
+        from gpja.register.pipeline import stage_writer
+
+        on_stage = stage_writer(args.stages_dir)
+    mesh, log = register(start_mesh, mask, targets, schedule, switches, progress=lambda m: print(m, flush=True),
+                         render=render, on_stage=on_stage)
     texture_ref = os.path.relpath(Path(args.template_dir) / "texture.png", Path(args.output).parent)
     summary = {"subject": args.subject, "expression": args.expression, "switches": switches.__dict__,
+               "start": str(args.start_from) if args.start_from else "template",
                "lighting": str(Path(args.template_dir) / LIGHTING_FILE),
                "seconds": round(time.perf_counter() - start, 2), **log.to_json()}
     write_registration(mesh, summary, args.output, texture_ref)
     print(f"register: {args.subject}/{args.expression} done in {summary['seconds']} s ({len(mesh.V)} vertices)", flush=True)
+
+
+def cmd_order(args: argparse.Namespace) -> None:
+    from gpja.data.source import DataSource
+    from gpja.io import write_json
+    from gpja.register.order import plan_order
+
+    source = DataSource.from_args(args)
+    names = list(dict.fromkeys([args.template_expression, *args.expressions]))
+    scans = {e: source.scan(args.subject, e).V for e in names}
+    plan = plan_order(scans, args.template_expression, samples=args.samples, seed=args.seed)
+    plan["subject"] = args.subject
+    write_json(args.output, plan)
+    for e in plan["order"][1:]:
+        print(f"order: {args.subject}/{e} starts from {plan['parent'][e]} "
+              f"({plan['distances_mm'][e][plan['parent'][e]]:.2f} mm apart)", flush=True)
 
 
 def cmd_baseline(args: argparse.Namespace) -> None:
@@ -182,6 +210,18 @@ def cmd_metrics(args: argparse.Namespace) -> None:
     write_json(args.output, result)
     print(f"metrics: {args.subject}/{args.method}/{args.expression}: {summary_line(result)} "
           f"({time.perf_counter() - start:.1f} s)", flush=True)
+
+
+def cmd_stages(args: argparse.Namespace) -> None:
+    from gpja.data.source import DataSource
+    from gpja.metrics.stages import score_stages
+
+    out = score_stages(args.stages_dir, args.template_dir, DataSource.from_args(args), args.ground_truth_root,
+                       args.subject, args.expression, args.targets, args.output,
+                       template_expression=args.template_expression, render=_renderer(args))
+    for row in out["stages"]:
+        print(f"stages: {args.subject}/{args.expression} {row['stage']}: correspondence median {row['median_mm']:.2f} "
+              f"mean {row['mean_mm']:.2f} mm, PSNR {row['psnr']:.2f} dB (view {out['view']})", flush=True)
 
 
 def cmd_oracle(args: argparse.Namespace) -> None:
@@ -356,8 +396,24 @@ def build_parser() -> argparse.ArgumentParser:
     _add_registration_args(p)
     p.add_argument("--template-dir", required=True)
     p.add_argument("--without", nargs="*", choices=["color", "depth", "normal", "mask"], help="ablation: constraints to switch off")
+    p.add_argument("--start-from", default=None,
+                   help="another expression's registered .obj to start from (its template vertices' positions, on "
+                        "the template's topology; registration.start: tree); default: the template")
+    p.add_argument("--stages-dir", default=None,
+                   help="folder for the mesh of each stage (start, warm-up, every level) as .npz, for diagnostics")
     p.add_argument("--output", required=True, help="registered mesh .obj (a .json log is written beside it)")
     p.set_defaults(func=cmd_register)
+
+    p = sub.add_parser("order", help="which expression each registration starts from: the minimum spanning tree of "
+                                     "the subject's scan-to-scan distances, rooted at the template's expression")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--expressions", nargs="+", required=True, help="the expressions to register")
+    p.add_argument("--template-expression", default="3_mouth_stretch")
+    _add_data_args(p, required=False)
+    p.add_argument("--samples", type=int, default=20000, help="scan vertices per mean distance")
+    p.add_argument("--seed", type=int, default=0, help="seed of the vertex sampling")
+    p.add_argument("--output", required=True, help="order JSON: parent, order, depth and distances_mm")
+    p.set_defaults(func=cmd_order)
 
     p = sub.add_parser("baseline", help="register the subject's template to one expression with a baseline "
                                         "(a `baseline` method of gpja.methods, e.g. nicp)")
@@ -393,6 +449,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", required=True, help="metrics JSON")
     p.add_argument("--output-dir", required=True, help="per-vertex errors, renders and error images")
     p.set_defaults(func=cmd_metrics)
+
+    p = sub.add_parser("stages", help="synthetic data: score the mesh after every stage of a registration "
+                                      "(correspondence, the frontal view's PSNR and L1 image)")
+    _add_expression_args(p)
+    _add_data_args(p)
+    _add_backend_arg(p)
+    p.add_argument("--stages-dir", required=True, help="the registration's --stages-dir")
+    p.add_argument("--template-dir", required=True)
+    p.add_argument("--template-expression", default="3_mouth_stretch")
+    p.add_argument("--targets", required=True, help="the expression's scan targets .npz")
+    p.add_argument("--ground-truth-root", required=True, help="synthetic ground truth: {root}/{subject}/...")
+    p.add_argument("--output", required=True, help="scores .json (the arrays go to the .npz beside it)")
+    p.set_defaults(func=cmd_stages)
 
     p = sub.add_parser("oracle", help="synthetic data: render the ground truth (scan, albedo, lighting) at the "
                                       "reference cameras and score it like a method (Table 2's upper bound)")

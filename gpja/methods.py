@@ -36,6 +36,8 @@ class Method:
         kind: one of :data:`KINDS`.
         without: the constraints switched off (ablation variants; empty otherwise).
         entry: ``"module:function"`` that runs a baseline (kind ``baseline`` only).
+        schedule: the ``registration`` config section a GPJA registration takes its schedule from
+            (``gpja``; ``paper`` for the paper's own schedule).
     """
 
     name: str
@@ -43,6 +45,7 @@ class Method:
     kind: str
     without: tuple[str, ...] = ()
     entry: str | None = None
+    schedule: str = "gpja"
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -59,9 +62,16 @@ class Method:
         return self.kind in ("gpja", "ablation")
 
     @property
+    def follows_start(self) -> bool:
+        """Starts where GPJA starts (``registration.start``); the paper's schedule always from the template."""
+        return self.registers_with_gpja and self.schedule == "gpja"
+
+    @property
     def ablation_label(self) -> str | tuple[str, str]:
         """Row label of Table 3: ``GPJA``, ``w/o mask`` or (text, LaTeX) ``w/o L_normal``."""
         if self.kind != "ablation":
+            return self.label
+        if not self.without:
             return self.label
         if self.without == ("mask",):
             return "w/o mask"
@@ -86,6 +96,8 @@ def _ablation(constraint: str) -> Method:
 METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja", "GPJA", "gpja"),
     *(_ablation(c) for c in CONSTRAINTS),
+    # the paper's method as published (no warm-up, one Adam, from the template): what each departure buys
+    Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),
     Method("oracle", "Oracle (ground truth)", "reference"),
 ]}
@@ -111,18 +123,23 @@ def label(name: str) -> str:
 def check_config(config: Mapping) -> None:
     """Check the method names of a workflow config against the registry, before any job runs.
 
-    ``registration.ablations.variants`` must be registered ablation variants; every key of ``baselines``
+    ``registration.ablations.variants`` must be registered ablation variants, each with its schedule's
+    section (``registration.paper`` for ``gpja-paper``); every key of ``baselines``
     but ``external`` a registered baseline; an imported method (``baselines.external``) may not take a
     registered method's name, nor another imported method's.
 
     Raises:
         InputError: naming the config key and the known names.
     """
-    ablations = (config.get("registration") or {}).get("ablations") or {}
+    registration = config.get("registration") or {}
+    ablations = registration.get("ablations") or {}
     for name in ablations.get("variants") or []:
         if method(name).kind != "ablation":
             raise InputError("registration.ablations.variants",
                              f"unknown ablation variant {name!r}; known: {', '.join(names('ablation'))}")
+        if method(name).schedule not in registration:
+            raise InputError(f"registration.{method(name).schedule}",
+                             f"missing: the variant {name!r} takes its schedule from it")
     baselines = config.get("baselines") or {}
     for key in baselines:
         if key != "external" and method(key).kind != "baseline":

@@ -102,6 +102,10 @@ class Layout:
         """A mesh the template step keeps of one of its stages (``bust``, ``fitted``): ``stages/{stage}.obj``."""
         return self.template_file(subject, "stages") / f"{stage}.obj"
 
+    def registration_order(self, subject: str) -> Path:
+        """Which expression each GPJA registration starts from (``gpja order``, ``registration.start: tree``)."""
+        return self.subject_dir(subject) / "registration_order.json"
+
     # --- per (subject, method, expression) -------------------------------------------------------------------
     def method_dir(self, subject: str, method: str) -> Path:
         return self.subject_dir(subject) / method
@@ -113,6 +117,18 @@ class Layout:
     def registration_log(self, subject: str, method: str, expression: str) -> Path:
         """The JSON log a registration (GPJA, a baseline) or an import writes beside its mesh."""
         return self.method_dir(subject, method) / f"{expression}.json"
+
+    def registration_stages(self, subject: str, method: str, expression: str) -> Path:
+        """The folder of a registration's stage meshes (``gpja register --stages-dir``)."""
+        return self.method_dir(subject, method) / "stages" / expression
+
+    def stage_scores(self, subject: str, method: str, expression: str) -> Path:
+        """The scores of those stages (``gpja stages``, synthetic data): a .json and an .npz beside it."""
+        return self.method_dir(subject, method) / "stages" / f"{expression}.json"
+
+    def stage_arrays(self, subject: str, method: str, expression: str) -> Path:
+        """The arrays beside :meth:`stage_scores` (per-vertex errors, L1 images)."""
+        return self.stage_scores(subject, method, expression).with_suffix(".npz")
 
     def metrics(self, subject: str, method: str, expression: str) -> Path:
         """Where ``gpja metrics`` writes the scores of one (subject, method, expression)."""

@@ -44,6 +44,7 @@ SECTIONS = {
     "synthetic": "gpja.data.synthetic.writer:SynthConfig",
     "registration.template": "gpja.register.template:TemplateSettings",
     "registration.gpja": "gpja.register.multiscale:Schedule",
+    "registration.paper": "gpja.register.multiscale:Schedule",  # the gpja-paper variant's schedule
     "baselines.nicp.settings": "gpja.baselines.nicp:NicpSettings",
     "metrics": "gpja.metrics.evaluate:MetricSettings",
     "figures": "gpja.report.figures:FigureSettings",

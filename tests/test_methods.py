@@ -23,13 +23,18 @@ def toy_baseline(template_dir, source, subject, expression, output, section, tem
 
 def test_registry_names_labels_and_switches():
     assert M.names("gpja") == ["gpja"]
-    assert M.names("ablation") == ["gpja-no_normal", "gpja-no_depth", "gpja-no_color", "gpja-no_mask"]
+    assert M.names("ablation") == ["gpja-no_normal", "gpja-no_depth", "gpja-no_color", "gpja-no_mask", "gpja-paper"]
     assert M.names("baseline") == ["nicp"]
     assert [M.label(m) for m in ("gpja", "nicp", "gpja-no_mask", "nphm")] == ["GPJA", "NICP", "GPJA w/o mask", "nphm"]
     assert M.method("gpja-no_depth").without == ("depth",) and M.method("gpja").without == ()
     assert M.method("gpja-no_normal").ablation_label == ("w/o L_normal", r"w/o $\mathcal{L}_{normal}$")
     assert M.method("gpja-no_mask").ablation_label == "w/o mask"
     assert M.method("nphm").kind == "imported"
+    # the paper's schedule: every constraint on, its own config section, always from the template
+    paper = M.method("gpja-paper")
+    assert paper.without == () and paper.schedule == "paper" and paper.ablation_label == "GPJA (paper schedule)"
+    assert not paper.follows_start and M.method("gpja").follows_start and M.method("gpja-no_depth").follows_start
+    assert not M.method("nicp").follows_start
 
 
 @pytest.mark.parametrize("change, key", [
@@ -38,9 +43,10 @@ def test_registry_names_labels_and_switches():
     (lambda c: c["baselines"].update(external=[{"name": "gpja", "pattern": "x"}]), "baselines.external"),
     (lambda c: c["baselines"].update(external=[{"name": "tu", "pattern": "x"}, {"name": "tu", "pattern": "y"}]),
      "baselines.external"),
-], ids=["ablation", "baseline", "imported-taken", "imported-twice"])
+    (lambda c: c["registration"]["ablations"].update(variants=["gpja-paper"]), "registration.paper"),
+], ids=["ablation", "baseline", "imported-taken", "imported-twice", "schedule-section"])
 def test_config_method_names_are_checked_against_the_registry(change, key):
-    config = {"registration": {"ablations": {"variants": ["gpja-no_mask"]}},
+    config = {"registration": {"gpja": {}, "ablations": {"variants": ["gpja-no_mask"]}},
               "baselines": {"nicp": {"enabled": True}, "external": [{"name": "tu", "pattern": "x"}]}}
     M.check_config(config)
     change(config)

@@ -2,7 +2,8 @@
 
 (a) no module of ``gpja.register`` (nor the CLI's template and register commands) imports the ground-truth
     reader or the synthetic generator;
-(b) ``gpja template`` and ``gpja register`` have no ground-truth option;
+(b) ``gpja template``, ``gpja register`` and ``gpja order`` (which expression a registration starts from) have no
+    ground-truth option;
 (c) at run time, on a tiny synthetic subject whose ground truth sits beside its images and scans, neither
     command opens or lists a file of the ground-truth folder (every ``open`` and directory listing of the
     process is recorded through a ``sys.addaudithook`` hook), and the template's lighting is estimated;
@@ -29,7 +30,7 @@ from tests.test_layers import imported_modules, package_imports, within
 
 ORACLES = ("gpja.data.ground_truth", "gpja.data.synthetic")
 #: The CLI functions on the method's path (the template and registration commands and what they share).
-METHOD_COMMANDS = ("cmd_template", "cmd_register", "_load_for_registration")
+METHOD_COMMANDS = ("cmd_template", "cmd_register", "_load_for_registration", "cmd_order")
 GROUND_TRUTH_WORDS = re.compile(r"ground.?truth|\bgt\b|oracle", re.I)
 
 
@@ -63,12 +64,12 @@ def test_the_method_commands_import_no_ground_truth():
                 assert not GROUND_TRUTH_WORDS.search(text), f"{name} uses {text}"
 
 
-@pytest.mark.parametrize("command", ["template", "register"])
+@pytest.mark.parametrize("command", ["template", "register", "order"])
 def test_method_commands_have_no_ground_truth_option(command, capsys):
     with pytest.raises(SystemExit):
         main([command, "--help"])
     text = capsys.readouterr().out
-    assert "--images-root" in text and "--targets" in text  # the help was printed
+    assert "--scans-root" in text and "--output" in text  # the help was printed
     assert not GROUND_TRUTH_WORDS.search(text), text
     sub = build_parser()._subparsers._group_actions[0].choices[command]
     options = [o for action in sub._actions for o in action.option_strings]
@@ -135,6 +136,10 @@ def test_template_and_registration_open_no_ground_truth_file(tiny_subject, tmp_p
                             "--targets", str(tmp_path / "t1.npz"), "--settings", '{"lambdas": [50], "iterations": [3]}',
                             "--template-dir", str(tmp_path / "template"), "--output", str(tmp_path / "r" / "1.obj")])
     assert (tmp_path / "r" / "1.obj").is_file()
+    opened += run_recorded(["--threads", "1", "order", "--subject", "S01", "--scans-root", str(root / "scans"),
+                            "--expressions", "1_neutral", "--output", str(tmp_path / "order.json")])
+    assert json.loads((tmp_path / "order.json").read_text())["parent"] == {"3_mouth_stretch": None,
+                                                                          "1_neutral": "3_mouth_stretch"}
     assert any(p.startswith(str((root / "images").resolve())) for p in opened)  # the recorder sees the data reads
     leaked = sorted({p for p in opened if os.path.realpath(p).startswith(truth)})
     assert not leaked, f"the method opened ground truth: {leaked}"
@@ -154,12 +159,12 @@ def test_template_and_registration_jobs_declare_no_ground_truth(tmp_path):
                          cwd=work, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     blocks = {}
-    for block in re.split(r"\n(?=(?:local)?rule \w+:)", out.stdout):
-        head = re.match(r"(?:local)?rule (\w+):", block.strip())
+    for block in re.split(r"\n(?=(?:local)?(?:rule|checkpoint) \w+:)", out.stdout):
+        head = re.match(r"(?:local)?(?:rule|checkpoint) (\w+):", block.strip())
         if head:
             blocks[head.group(1)] = block
-    assert {"build_template", "register_expression", "compute_metrics"} <= set(blocks)
-    for rule in ("build_template", "register_expression"):
+    assert {"build_template", "register_expression", "registration_order", "compute_metrics"} <= set(blocks)
+    for rule in ("build_template", "register_expression", "registration_order"):
         inputs = re.search(r"^\s*input: (.*)$", blocks[rule], re.M).group(1)
         assert gt_root not in inputs and not GROUND_TRUTH_WORDS.search(blocks[rule]), blocks[rule]
     # the metrics do read it (the check above would see it)

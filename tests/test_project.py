@@ -81,6 +81,8 @@ def test_dry_run_schedules_synthesis_and_checks(tmp_path):
     with_template = n_expressions + (cfg["registration"]["template_expression"] not in cfg["expressions"])
     assert int(counts["render_scan_targets"]) == n_subjects * with_template
     assert int(counts["build_template"]) == n_subjects
+    assert int(counts["registration_order"]) == n_subjects * (cfg["registration"]["start"] == "tree")
+    assert int(counts["score_stages"]) == n_subjects * n_expressions  # GPJA's stages (figure registration_stages)
     ablations = cfg["registration"]["ablations"]
     n_ablation = (len(ablations["variants"]) * len(ablations["subjects"] or cfg["subjects"])
                   * len(ablations["expressions"] or cfg["expressions"]))
@@ -103,8 +105,8 @@ def dry_run_jobs(work: Path, *targets: str) -> list[dict]:
                          text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     jobs = []
-    for block in re.split(r"\n(?=(?:local)?rule \w+:)", out.stdout):
-        head = re.match(r"(?:local)?rule (\w+):", block.strip())
+    for block in re.split(r"\n(?=(?:local)?(?:rule|checkpoint) \w+:)", out.stdout):
+        head = re.match(r"(?:local)?(?:rule|checkpoint) (\w+):", block.strip())
         if head:
             wildcards = re.search(r"wildcards: (.*)", block)
             pairs = dict(p.split("=", 1) for p in wildcards.group(1).split(", ")) if wildcards else {}
@@ -129,6 +131,27 @@ def test_subject_target_schedules_only_that_subject(tmp_path):
     ablated = cfg["registration"]["ablations"]["subjects"][0]
     methods = {j.get("method") for j in dry_run_jobs(work, f"results/{cfg['dataset']}/{ablated}/all.done")}
     assert set(cfg["registration"]["ablations"]["variants"]) <= methods
+
+
+def test_the_paper_schedule_variant_runs_from_the_template_with_its_own_settings(tmp_path):
+    """gpja-paper goes through the DAG with the config's registration.paper section and never starts from
+    another expression; GPJA itself waits for the registration tree (registration.start: tree)."""
+    work = copy_workflow(tmp_path)
+    cfg = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    ablations = cfg["registration"]["ablations"]
+    assert "gpja-paper" in ablations["variants"]
+    subject, expression = (ablations["subjects"] or cfg["subjects"])[0], (ablations["expressions"] or cfg["expressions"])[0]
+    target = f"results/{cfg['dataset']}/{subject}/gpja-paper/metrics/{expression}.json"
+    out = subprocess.run([*SNAKEMAKE, "-n", "-p", "--cores", "2", "--", target], cwd=work, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    command = next(line for line in out.stdout.splitlines() if " register --subject" in line)
+    settings = json.loads(re.search(r"--settings '([^']*)'", command).group(1))
+    assert settings == cfg["registration"]["paper"]
+    assert settings["warmup_iterations"] == 0 and settings["optimizer_state"] == "shared"
+    assert "--start-from" not in command and "registration_order" not in out.stdout
+    jobs = dry_run_jobs(work, f"results/{cfg['dataset']}/{subject}/gpja/metrics/{expression}.json")
+    assert any(j["rule"] == "registration_order" and j["subject"] == subject for j in jobs)
 
 
 def test_reference_steps_and_their_outputs_are_in_the_ci_dag(tmp_path):
@@ -205,6 +228,16 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         oracle = json.loads((work / f"results/{cfg['dataset']}/S01/oracle/metrics/{expression}.json").read_text())
         assert oracle["geometry"] is None and oracle["photometric"]["psnr"] > max(
             metrics["photometric"]["psnr"], nicp["photometric"]["psnr"])
+    # the closed-mouth expression is registered through the tree (scans alone), gpja-paper from the template
+    closed = cfg["registration"]["ablations"]["expressions"][0]
+    order = json.loads((work / f"results/{cfg['dataset']}/S01/registration_order.json").read_text())
+    assert order["parent"][closed] != cfg["registration"]["template_expression"]  # a chain, not the template
+    assert json.loads((work / f"results/{cfg['dataset']}/S01/gpja/{closed}.json").read_text())["start"] != "template"
+    assert json.loads((work / f"results/{cfg['dataset']}/S01/gpja-paper/{closed}.json").read_text())["start"] == "template"
+    stages = json.loads((work / f"results/{cfg['dataset']}/S01/gpja/stages/{closed}.json").read_text())["stages"]
+    gpja_cfg = cfg["registration"]["gpja"]
+    assert [r["stage"] for r in stages] == (["start"] + ["warmup"] * bool(gpja_cfg.get("warmup_iterations"))
+                                            + [f"level{k + 1}" for k in range(len(gpja_cfg["lambdas"]))])
     quality = json.loads((template_dir / "texture_quality.json").read_text())
     assert quality["observed"]["psnr"] > 15.0 and (template_dir / "texture_error.png").is_file()
     for expression in cfg["expressions"]:
@@ -221,7 +254,7 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
     assert "Oracle (ground truth)" in (tables / "photometric.md").read_text()
     figures = work / f"results/{cfg['dataset']}/figures"
     for kind in ("template_stages", "geometric_errors", "correspondence_errors", "photometric_errors", "closeups",
-                 "convergence", "ablation_mask"):
+                 "convergence", "ablation_mask", "registration_stages"):
         for suffix in ("png", "pdf"):
             assert (figures / f"{kind}_S01.{suffix}").stat().st_size > 10_000, f"{kind}.{suffix}"
     report = (work / f"results/{cfg['dataset']}/report.html").read_text(errors="replace")

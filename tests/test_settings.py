@@ -36,6 +36,9 @@ NON_DEFAULT = {
     "registration.gpja": {"lambdas": [40, 30, 20, 10], "iterations": [1, 2, 3, 4], "refine_factor": 3.0,
                           "lr_fraction": 0.7, "lr_decay": 0.2, "color_pool": [4, 2, 1, 1], "warmup_iterations": 5,
                           "warmup_geometry": True, "optimizer_state": "per_constraint"},
+    "registration.paper": {"lambdas": [40, 30], "iterations": [1, 2], "refine_factor": 3.0,
+                           "lr_fraction": 0.7, "lr_decay": 0.2, "color_pool": [4, 1], "warmup_iterations": 5,
+                           "warmup_geometry": True, "optimizer_state": "per_constraint"},
     "baselines.nicp.settings": {"steps": [[0.5, 0.25, 3]], "gamma": 2.0, "max_distance_mm": 4.0,
                                 "max_normal_angle_deg": 45.0, "reject_boundary": False, "convergence_mm": 0.5,
                                 "rigid_iterations": 3, "rigid_keep": 0.5, "similarity": True},
@@ -50,9 +53,12 @@ def load(name: str) -> dict:
 
 
 def schema_node(key: str) -> dict:
-    node = yaml.safe_load((ROOT / "workflow/schemas/config.schema.yaml").read_text())
+    schema = yaml.safe_load((ROOT / "workflow/schemas/config.schema.yaml").read_text())
+    node = schema
     for part in key.split("."):
         node = node["properties"][part]
+    if "$ref" in node:  # "#/$defs/<name>": a definition shared by sections (the schedules)
+        node = schema["$defs"][node["$ref"].rsplit("/", 1)[1]]
     return node
 
 
@@ -250,14 +256,14 @@ def test_cross_field_errors_name_the_config_key(change, match):
 def test_unused_sections_are_not_checked():
     cfg = broken(lambda c: (c["synthetic"].update(enabled=False), c.update(expressions=["1_neutral", "99_unknown"]),
                             c["baselines"]["nicp"].update(enabled=False, settings={"steps": []})))
-    assert set(check_config(cfg)) == {"registration.template", "registration.gpja", "metrics"}
+    assert set(check_config(cfg)) == {"registration.template", "registration.gpja", "registration.paper", "metrics"}
 
 
 def test_the_synthetic_section_gets_the_runs_expressions():
     cfg = load("ci.yaml")
     section = settings_section(cfg, "synthetic")
     assert "enabled" not in section and "raw_root" not in section
-    assert section["expressions"] == ["1_neutral", "3_mouth_stretch", "12_lip_puckerer"]
+    assert section["expressions"] == ["1_neutral", "3_mouth_stretch", "12_lip_puckerer", "13_lip_funneler"]
 
 
 def test_dry_run_stops_on_a_cross_field_error(tmp_path):

@@ -161,7 +161,8 @@ def warmup_switches(switches: Switches, schedule: Schedule) -> Switches:
 
 def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches, schedule: Schedule, *,
              texture: torch.Tensor, mask_texture: torch.Tensor, render=None, cull_backfaces: bool = True,
-             progress: Callable[[str], None] = print, progress_every: int = 50) -> tuple[TexturedMesh, RegistrationLog]:
+             progress: Callable[[str], None] = print, progress_every: int = 50,
+             on_stage: Callable[[str, TexturedMesh], None] | None = None) -> tuple[TexturedMesh, RegistrationLog]:
     """Deform ``mesh`` towards one expression, level by level.
 
     Args:
@@ -172,6 +173,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         render: the backend's ``render_views`` (``gpja.render.renderer``) for every iteration's render;
             None = the CPU renderer (``gpja.render.render_views``).
         cull_backfaces: skip back faces (the template is closed: they are never visible).
+        on_stage: called with ``("warmup", mesh)`` after the warm-up and ``("level{k}", mesh)`` after level k
+            (1-based), for diagnostics (``gpja register --stages-dir``).
     Returns:
         The registered mesh (last level's topology, same UV parametrisation) and its log: one entry
         per level, preceded by the warm-up's (``"stage": "warmup"``) when there is one.
@@ -186,6 +189,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
                                      warmup_switches(switches, schedule), schedule, 1, **common)
         log.levels.append({"stage": "warmup", **entry})
+        if on_stage is not None:
+            on_stage("warmup", mesh)
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
         start = time.perf_counter()
         if level > 0:
@@ -196,6 +201,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         entry["seconds"] = round(entry["seconds"] + refine_s, 3)
         entry["setup_seconds"] = round(entry["setup_seconds"] + refine_s, 3)
         log.levels.append({"stage": "level", "level": level, **entry})
+        if on_stage is not None:
+            on_stage(f"level{level + 1}", mesh)
     return mesh, log
 
 

@@ -90,8 +90,79 @@ def warn_on_uncovered_views(mesh: TexturedMesh, targets: ExpressionTargets, sour
     return empty
 
 
+def start_from(template: TexturedMesh, registered: TexturedMesh, source: str | Path) -> TexturedMesh:
+    """The template's topology at another expression's registered positions (``registration.gpja.init: tree``).
+
+    A registered mesh keeps the template's vertices first and in order (refinement appends the new
+    ones, ``gpja.register.remesh``), so its first ``n_template`` positions are where that registration
+    put the template's vertices. Starting from them on the template's own triangulation, texture and
+    mouth mask, the next registration refines exactly as one from the template does.
+
+    Raises:
+        InputError: ``registered`` (read from ``source``) is no registration of this template (fewer
+            vertices, other UVs) or has non-finite positions.
+    """
+    from gpja.errors import InputError
+
+    n = len(template.V)
+    if len(registered.V) < n:
+        raise InputError(source, f"has {len(registered.V)} vertices, fewer than the template's {n}: "
+                                 "not a registration of this template")
+    if registered.UV is None or len(registered.UV) < len(template.UV) or not np.allclose(
+            registered.UV[: len(template.UV)], template.UV, atol=1e-5):
+        raise InputError(source, "its texture coordinates do not start with the template's: "
+                                 "not a registration of this template")
+    V = registered.V[:n]
+    if not np.isfinite(V).all():
+        raise InputError(source, "has NaN or infinite vertex positions")
+    return template.with_vertices(V.astype(np.float64))
+
+
+#: ``gpja register --stages-dir``: one ``{index}_{stage}.npz`` per stage (start, warmup, level1, ...).
+STAGE_ARRAYS = ("V", "F", "UV", "F_uv")
+
+
+def stage_writer(out_dir: str | Path) -> Callable[[str, TexturedMesh], None]:
+    """``on_stage`` of :func:`gpja.register.multiscale.optimise` that saves each stage's mesh into ``out_dir``
+    as ``{index}_{stage}.npz`` (V float32 mm, F/F_uv int32, UV float32), numbered in the order called."""
+    from gpja.io import write_npz
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    count = [0]
+
+    def write(name: str, mesh: TexturedMesh) -> None:
+        write_npz(out / f"{count[0]}_{name}.npz", V=mesh.V.astype(np.float32), F=mesh.F.astype(np.int32),
+                  UV=mesh.UV.astype(np.float32), F_uv=mesh.F_uv.astype(np.int32))
+        count[0] += 1
+
+    return write
+
+
+def read_stages(stages_dir: str | Path) -> list[tuple[str, TexturedMesh]]:
+    """The stage meshes :func:`stage_writer` saved, in order: ``[(stage name, mesh)]``."""
+    from gpja.errors import InputError
+    from gpja.io import read_npz
+
+    folder = Path(stages_dir)
+    if not folder.is_dir():
+        raise InputError(folder, "registration stages folder not found (gpja register --stages-dir)")
+    files = sorted(folder.glob("*_*.npz"), key=lambda p: int(p.name.split("_", 1)[0]))
+    if not files:
+        raise InputError(folder, "no stage meshes in the folder")
+    stages = []
+    for path in files:
+        arrays = read_npz(path)
+        missing = [k for k in STAGE_ARRAYS if k not in arrays]
+        if missing:
+            raise InputError(path, f"no {', '.join(missing)} array(s): not a stage mesh")
+        stages.append((path.stem.split("_", 1)[1], TexturedMesh(arrays["V"], arrays["F"], arrays["UV"], arrays["F_uv"])))
+    return stages
+
+
 def register(template: TexturedMesh, mouth_mask: np.ndarray, targets: ExpressionTargets, schedule: Schedule,
-             switches: Switches, progress: Callable[[str], None] = print, render: Callable | None = None):
+             switches: Switches, progress: Callable[[str], None] = print, render: Callable | None = None,
+             on_stage: Callable[[str, TexturedMesh], None] | None = None):
     """Register the template to one expression (GPJA or an ablation variant).
 
     ``render``: the backend's ``render_views`` (``gpja.render.renderer``) for every render of the
@@ -100,5 +171,7 @@ def register(template: TexturedMesh, mouth_mask: np.ndarray, targets: Expression
     warn_on_uncovered_views(template, targets, render=render)
     texture = torch.tensor(template.texture, dtype=torch.float32)
     mask = torch.tensor(mouth_mask, dtype=torch.float32)[..., None]
+    if on_stage is not None:
+        on_stage("start", template)
     return optimise(template, targets, switches, schedule, texture=texture, mask_texture=mask, render=render,
-                    progress=progress)
+                    progress=progress, on_stage=on_stage)

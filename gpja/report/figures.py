@@ -30,7 +30,7 @@ COMPARED = "compared"
 #: the metrics JSONs (and their detail folders) or the registration logs of its methods and expressions, and
 #: on synthetic data the texture's quality against the ground truth (``template/texture_quality.json`` and its
 #: error image; an input only where the run has ground truth).
-NEEDS = ("template", "metrics", "registration_logs", "texture_quality")
+NEEDS = ("template", "metrics", "registration_logs", "texture_quality", "stages")
 #: The texture-quality files of a template folder (``gpja texture-quality``; gpja.metrics.texture_quality).
 TEXTURE_QUALITY_FILES = ("texture_quality.json", "texture_error.png")
 
@@ -173,6 +173,8 @@ FIGURES: dict[str, Figure] = {f.name: f for f in [
            methods=COMPARED, ground_truth=True),
     Figure("convergence", "gpja.report.figures_convergence:draw_convergence",
            needs=("template", "registration_logs")),
+    Figure("registration_stages", "gpja.report.figures_stages:draw_registration_stages",
+           needs=("template", "stages"), ground_truth=True),
     Figure("photometric_errors", "gpja.report.figures_photometry:draw_photometric_errors", photometric=True),
     Figure("closeups", "gpja.report.figures_photometry:draw_closeups", photometric=True),
     Figure("ablation_normal", "gpja.report.figures_geometry:draw_ablation_normal",
@@ -294,6 +296,8 @@ class FigurePlan:
             files += [self.layout.registration_log(subject, m, e) for m, e in pairs]
         if "metrics" in entry.needs:
             files += [self.layout.metrics(subject, m, e) for m, e in pairs]
+        if "stages" in entry.needs:
+            files += [self.layout.stage_scores(subject, m, e) for m, e in pairs]
         if "texture_quality" in entry.needs and self.ground_truth:
             files += [self.layout.template_file(subject, name) for name in TEXTURE_QUALITY_FILES]
         return [str(f) for f in files]

@@ -53,10 +53,52 @@ rule build_template:
         " --output-dir {params.out_dir} > {log} 2>&1"
 
 
+checkpoint registration_order:
+    """Which expression each registration starts from: the minimum spanning tree of the scans' distances."""
+    input:
+        scans=lambda wc: [scan_ply(wc.subject, e) for e in DATA_EXPRESSIONS],
+    output:
+        results_path("registration_order", "{subject}"),
+    params:
+        data=data_args(),
+        expressions=" ".join(EXPRESSIONS),
+        root=TEMPLATE_EXPRESSION,
+    log:
+        log_path("{subject}", "registration_order"),
+    benchmark:
+        bench_path("{subject}", "registration_order")
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=5,
+    shell:
+        "gpja --threads {threads} order --subject {wildcards.subject} --expressions {params.expressions}"
+        " --template-expression {params.root} {params.data} --output {output} > {log} 2>&1"
+
+
+def start_inputs(wildcards):
+    """The mesh a registration starts from when it is not the template (``registration.start: tree``): the
+    GPJA registration of the expression's parent in the subject's registration tree. Variants that change
+    one constraint start from the same mesh as GPJA; ``gpja-paper`` always starts from the template."""
+    if REG.get("start", "template") != "tree" or not registry.method(wildcards.method).follows_start:
+        return {}
+    with open(checkpoints.registration_order.get(subject=wildcards.subject).output[0]) as fh:
+        parent = json.load(fh)["parent"].get(wildcards.expression)
+    # the root is the template's own expression: its children start from the template itself
+    if parent is None or parent == TEMPLATE_EXPRESSION:
+        return {}
+    return {"start": results_path("registration", wildcards.subject, "gpja", parent)}
+
+
+def start_arg(wildcards, input):
+    return f"--start-from {shlex.quote(input.start)}" if "start" in input.keys() else ""
+
+
 rule register_expression:
     """Register the subject's template to one expression with GPJA (or an ablation variant)."""
     input:
         unpack(registration_inputs),
+        unpack(start_inputs),
         template=rules.build_template.output.obj,
         texture=rules.build_template.output.texture,
         mask=rules.build_template.output.mask,
@@ -64,13 +106,15 @@ rule register_expression:
     output:
         obj=results_path("registration", "{subject}", "{method}", "{expression}"),
         log_json=results_path("registration_log", "{subject}", "{method}", "{expression}"),
+        stages=directory(results_path("registration_stages", "{subject}", "{method}", "{expression}")),
     wildcard_constraints:
         method="|".join(REGISTRATION_METHODS),
     params:
         data=data_args(),
         cache=UNDISTORTED,
-        settings=json_arg(REG["gpja"]),
+        settings=lambda wc: json_arg(REG[registry.method(wc.method).schedule]),
         without=without_args,
+        start=start_arg,
         template_dir=results_path("template_dir", "{subject}"),
         backend=BACKEND,
     log:
@@ -87,4 +131,4 @@ rule register_expression:
     shell:
         "gpja --threads {threads} register --subject {wildcards.subject} --expression {wildcards.expression} {params.data}"
         " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
-        " --template-dir {params.template_dir} {params.without} --backend {params.backend} --output {output.obj} > {log} 2>&1"
+        " --template-dir {params.template_dir} {params.without} {params.start} --backend {params.backend} --output {output.obj} --stages-dir {output.stages} > {log} 2>&1"
