@@ -122,7 +122,8 @@ def compare_starts(args, template, mask, targets, schedule, data) -> None:
 
     from gpja.mesh import read_obj
     from gpja.register.hra import Switches
-    from gpja.register.pipeline import register, stage_writer, start_from
+    from gpja.register.pipeline import register, start_from
+    from gpja.results import stage_writer
 
     parent = start_from(template, read_obj(args.compare_start, load_texture=False), args.compare_start)
     runs = {"template": [], "tree": []}

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import cv2
 import numpy as np
@@ -240,3 +240,8 @@ def distort_normalized(xy: np.ndarray, distortion: np.ndarray) -> np.ndarray:
     xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
     yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
     return np.stack([xd, yd], axis=1)
+
+
+def most_frontal_view(cameras: Sequence[Camera]) -> int:
+    """Index of the camera looking most directly at the face (its optical axis closest to -Z)."""
+    return int(np.argmin([cam.R[2, 2] for cam in cameras]))

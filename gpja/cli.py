@@ -140,7 +140,7 @@ def cmd_register(args: argparse.Namespace) -> None:
     start = time.perf_counter()
     on_stage = None
     if args.stages_dir:
-        from gpja.register.pipeline import stage_writer
+        from gpja.results import stage_writer
 
         on_stage = stage_writer(args.stages_dir)
     mesh, log = register(start_mesh, mask, targets, schedule, switches, progress=lambda m: print(m, flush=True),

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from gpja.camera import Camera
+from gpja.camera import Camera, most_frontal_view
 from gpja.errors import InputError
 from tests.conftest import distort_image, make_cameras, smooth_image
 from tests.tolerances import EXACT_F64, IMAGE_ROUNDTRIP_RATIO, UNDISTORT_PX
@@ -104,3 +104,11 @@ def test_regression_fixed_camera():
     uv, z = cam.project(np.array([[10.0, 20.0, 30.0]]))
     np.testing.assert_allclose(uv, [[302.634998, 228.636027]], atol=1e-4)
     np.testing.assert_allclose(z, [573.742107], atol=1e-4)
+
+
+def test_most_frontal_view_picks_the_camera_facing_the_face():
+    K = np.array([[500.0, 0, 64], [0, 500.0, 64], [0, 0, 1]])
+    side = Camera.look_at([600.0, 0, 100.0], [0, 0, 0], [0, 1, 0], K, 128, 128, name="side")
+    front = Camera.look_at([0.0, 0, 600.0], [0, 0, 0], [0, 1, 0], K, 128, 128, name="front")
+    assert most_frontal_view([side, front]) == 1
+    assert most_frontal_view([front, side]) == 0

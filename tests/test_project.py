@@ -168,7 +168,8 @@ def test_reference_steps_and_their_outputs_are_in_the_ci_dag(tmp_path):
     assert int(counts["oracle_metrics"]) == n_subjects * n_expressions
     tables = re.search(r"gpja --threads 1 tables .*", out.stdout).group(0)
     assert "--tables geometry photometric ablation correspondence correspondence_regions texture timing" in tables
-    assert re.search(r"--methods gpja nicp gpja-no_mask oracle\b", tables)
+    methods = ["gpja", "nicp", *cfg["registration"]["ablations"]["variants"], "oracle"]
+    assert re.search(rf"--methods {' '.join(methods)}\b", tables)
     # the template figure waits for the texture's error image
     assert re.search(r"figure template_stages .*", out.stdout)
     report = re.search(r"rule plot_template_stages:\n(.*?)\n\n", out.stdout, re.S).group(1)

@@ -14,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 
+from gpja.camera import most_frontal_view
 from gpja.data.source import DataSource
 from gpja.io import read_image, read_npz, write_json, write_npz
 from gpja.mesh import read_obj
@@ -21,8 +22,7 @@ from gpja.metrics.correspondence import (DEFAULT_MAX_DISTANCE_MM, TEMPLATE_EXPRE
                                          read_landmarks_rest, read_rest_coords)
 from gpja.metrics.photometric import head_mask, l1_error_image, masked_psnr, render_with_texture
 from gpja.metrics.regions import REGIONS
-from gpja.register.pipeline import read_stages
-from gpja.results import read_template_lighting
+from gpja.results import read_stages, read_template_lighting
 
 
 def score_stages(stages_dir: str | Path, template_dir: str | Path, source: DataSource, ground_truth_root: str | Path,
@@ -44,8 +44,6 @@ def score_stages(stages_dir: str | Path, template_dir: str | Path, source: DataS
         ``stage_names`` (S,), ``vertex_error_mm`` (S, n_template) float32 (NaN where unscored) and ``l1``
         (S, H, W, 3) uint8 colour-mapped L1 images of the view.
     """
-    from gpja.report.drawing import most_frontal_view
-
     template = read_obj(Path(template_dir) / "template.obj", load_texture=False)
     texture = read_image(Path(template_dir) / "texture.png")
     sh = read_template_lighting(template_dir)

@@ -118,48 +118,6 @@ def start_from(template: TexturedMesh, registered: TexturedMesh, source: str | P
     return template.with_vertices(V.astype(np.float64))
 
 
-#: ``gpja register --stages-dir``: one ``{index}_{stage}.npz`` per stage (start, warmup, level1, ...).
-STAGE_ARRAYS = ("V", "F", "UV", "F_uv")
-
-
-def stage_writer(out_dir: str | Path) -> Callable[[str, TexturedMesh], None]:
-    """``on_stage`` of :func:`gpja.register.multiscale.optimise` that saves each stage's mesh into ``out_dir``
-    as ``{index}_{stage}.npz`` (V float32 mm, F/F_uv int32, UV float32), numbered in the order called."""
-    from gpja.io import write_npz
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    count = [0]
-
-    def write(name: str, mesh: TexturedMesh) -> None:
-        write_npz(out / f"{count[0]}_{name}.npz", V=mesh.V.astype(np.float32), F=mesh.F.astype(np.int32),
-                  UV=mesh.UV.astype(np.float32), F_uv=mesh.F_uv.astype(np.int32))
-        count[0] += 1
-
-    return write
-
-
-def read_stages(stages_dir: str | Path) -> list[tuple[str, TexturedMesh]]:
-    """The stage meshes :func:`stage_writer` saved, in order: ``[(stage name, mesh)]``."""
-    from gpja.errors import InputError
-    from gpja.io import read_npz
-
-    folder = Path(stages_dir)
-    if not folder.is_dir():
-        raise InputError(folder, "registration stages folder not found (gpja register --stages-dir)")
-    files = sorted(folder.glob("*_*.npz"), key=lambda p: int(p.name.split("_", 1)[0]))
-    if not files:
-        raise InputError(folder, "no stage meshes in the folder")
-    stages = []
-    for path in files:
-        arrays = read_npz(path)
-        missing = [k for k in STAGE_ARRAYS if k not in arrays]
-        if missing:
-            raise InputError(path, f"no {', '.join(missing)} array(s): not a stage mesh")
-        stages.append((path.stem.split("_", 1)[1], TexturedMesh(arrays["V"], arrays["F"], arrays["UV"], arrays["F_uv"])))
-    return stages
-
-
 def register(template: TexturedMesh, mouth_mask: np.ndarray, targets: ExpressionTargets, schedule: Schedule,
              switches: Switches, progress: Callable[[str], None] = print, render: Callable | None = None,
              on_stage: Callable[[str, TexturedMesh], None] | None = None):

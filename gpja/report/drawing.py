@@ -123,11 +123,6 @@ def frontal_camera(points: np.ndarray, size: int, distance_mm: float = RENDER_DI
     return Camera.look_at(eye, centre, (0.0, 1.0, 0.0), K, size, size, name="frontal")
 
 
-def most_frontal_view(cameras: Sequence[Camera]) -> int:
-    """Index of the camera looking most directly at the face (its optical axis closest to -Z)."""
-    return int(np.argmin([cam.R[2, 2] for cam in cameras]))
-
-
 @dataclass
 class SurfaceRender:
     """A one-view render of a surface.

@@ -20,7 +20,8 @@ from gpja.camera import Camera
 from gpja.errors import InputError
 from gpja.io import read_image
 from gpja.methods import label
-from gpja.report.drawing import crop_to_coverage, most_frontal_view, new_grid, set_title
+from gpja.camera import most_frontal_view
+from gpja.report.drawing import crop_to_coverage, new_grid, set_title
 from gpja.report.figures import FigureRequest, FigureSettings, RunFiles
 
 #: Feature boxes in the canonical head frame relative to the mouth centre (mm): centre offset, width, height.

@@ -215,7 +215,9 @@ def ablation_table(run: Run, published: str | None = None) -> Table:
     paper = {m: dict(zip(PAPER_ABLATION_KEYS, v)) for m, v in PUBLISHED_ABLATION.items()} if published else {}
     reference = [[paper_label(ablation_label(m))] + [metric_cell(v.get(n), n) for n in names] for m, v in paper.items()]
     rules = ({1} if variants[0] == "gpja" and len(variants) > 1 else set()) | ({len(rows)} if reference else set())
-    block = Block(headers=["Method"] + [header(n) for n in names], rows=rows + reference, rules=rules,
+    # beside geometry and photometry, the correspondence columns say what they are
+    headers = [("Corr. " + header(n)[0].lower() + header(n)[1:]) if n in scored else header(n) for n in names]
+    block = Block(headers=["Method"] + headers, rows=rows + reference, rules=rules,
                   reference_rows=set(range(len(rows), len(rows) + len(reference))),
                   better=[None] + [BETTER[n] for n in names])
     mark_best(block)

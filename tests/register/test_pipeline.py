@@ -142,7 +142,7 @@ def test_start_from_rejects_a_mesh_of_another_template(tmp_path):
 
 
 def test_stage_meshes_round_trip_in_order_and_bad_folders_are_named(tmp_path):
-    from gpja.register.pipeline import read_stages, stage_writer
+    from gpja.results import read_stages, stage_writer
     from tests.render.scenes import sphere, spherical_uv
 
     V, F = sphere(subdivisions=1, radius=50.0)

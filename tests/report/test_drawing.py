@@ -31,14 +31,6 @@ def test_frontal_camera_centres_and_frames_the_points():
     assert left < right  # +X (the subject's left) on the image's right, as seen from the front
 
 
-def test_most_frontal_view_picks_the_camera_facing_the_face():
-    K = np.array([[500.0, 0, 64], [0, 500.0, 64], [0, 0, 1]])
-    side = Camera.look_at([600.0, 0, 100.0], [0, 0, 0], [0, 1, 0], K, 128, 128, name="side")
-    front = Camera.look_at([0.0, 0, 600.0], [0, 0, 0], [0, 1, 0], K, 128, 128, name="front")
-    assert D.most_frontal_view([side, front]) == 1
-    assert D.most_frontal_view([front, side]) == 0
-
-
 def test_render_surface_interpolates_vertex_values_and_shades_facing_surfaces():
     V, F = quad(half=40.0)
     camera = D.frontal_camera(V * 1.5, size=64)

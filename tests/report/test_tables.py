@@ -67,6 +67,20 @@ def test_ablation_table_means_bolding_and_labels(tmp_path):
     assert T.comparison_methods(run.methods) == ["gpja"]
 
 
+def test_ablation_table_gains_correspondence_columns_on_synthetic_data(tmp_path):
+    res = tmp_path / "results"
+    write_metrics(res, "S01", "gpja", E1, cd=0.1, p2m=0.05, photo=(25.0, 0.80, 0.10), corr=(1.5, 0.4, 6.0))
+    write_metrics(res, "S01", "gpja-paper", E1, cd=0.4, p2m=0.3, photo=(23.0, 0.70, 0.20), corr=(3.1, 0.35, 13.0))
+    md = to_markdown(T.ablation_table(load_run(res, ["S01"], ["gpja", "gpja-paper"], [E1])))
+    assert "Corr. median (mm)" in md and "Corr. mean (mm)" in md
+    assert md_row(md, "GPJA")[-2:] == ["0.400", "**1.500**"]
+    assert md_row(md, "GPJA (paper schedule)")[-2:] == ["**0.350**", "3.100"]
+    # without ground truth there is nothing to show
+    plain = tmp_path / "plain"
+    write_metrics(plain, "S01", "gpja", E1, cd=0.1, p2m=0.05, photo=(25.0, 0.80, 0.10))
+    assert "Corr." not in to_markdown(T.ablation_table(load_run(plain, ["S01"], ["gpja"], [E1])))
+
+
 def test_published_facescape_numbers_beside_the_reproduced_ones(tmp_path):
     res = tmp_path / "results"
     for s in ("7", "32"):
