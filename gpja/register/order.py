@@ -22,10 +22,6 @@ from scipy.spatial import cKDTree
 
 from gpja.errors import InputError
 
-#: ``registration.gpja.init``: every expression from the template (the paper), or from its parent in the tree.
-INITS = ("template", "tree")
-
-
 def sample_points(V: np.ndarray, n: int, seed: int) -> np.ndarray:
     """Up to ``n`` of the scan's vertices, chosen with a seeded generator (all when it has fewer)."""
     if len(V) <= n:
