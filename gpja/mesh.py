@@ -113,6 +113,18 @@ def unique_edges(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([key // n, key % n], axis=1), inverse.reshape(-1, 3)
 
 
+def check_vertex_prefix(n_registered: int, n_template: int, source: str | Path) -> None:
+    """Raise :class:`InputError` if a registered mesh has fewer vertices than its template.
+
+    Registrations keep the template's vertices first and in order (refinement appends the new ones), so
+    vertex ``i < n_template`` of a registered mesh is template vertex ``i``: the correspondence metric and a
+    registration started from another one (``gpja.register.pipeline.start_from``) rely on it.
+    """
+    if n_registered < n_template:
+        raise InputError(source, f"{n_registered} vertices, fewer than the template's {n_template}: "
+                                 "not a registration of this template (its vertices must come first, in order)")
+
+
 # --- OBJ + MTL + PNG ----------------------------------------------------------------------
 
 def write_obj(path: str | Path, mesh: TexturedMesh, texture_name: str | None = "texture.png") -> None:

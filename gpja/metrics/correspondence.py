@@ -44,7 +44,7 @@ from gpja.data.source import DataSource
 from gpja.data.units import check_units
 from gpja.errors import InputError
 from gpja.io import read_npz, write_npz
-from gpja.mesh import TexturedMesh, read_obj
+from gpja.mesh import TexturedMesh, check_vertex_prefix, read_obj
 from gpja.metrics.regions import REGIONS, UNLABELLED, check_landmarks, label_regions, region_statistics
 from gpja.surface import interpolate, prepare_surface
 
@@ -56,13 +56,6 @@ DEFAULT_MAX_DISTANCE_MM = 2.0
 REST_COORDS_KEY = "scan_rest_coords"
 #: The ground-truth array of the 68 rest-space landmarks (the same in every expression's ``.npz``).
 LANDMARKS_REST_KEY = "landmarks_rest"
-
-
-def check_vertex_prefix(n_registered: int, n_template: int, source: str | Path) -> None:
-    """Raise :class:`InputError` if a registered mesh has fewer vertices than its template."""
-    if n_registered < n_template:
-        raise InputError(source, f"{n_registered} vertices, fewer than the template's {n_template}: "
-                                 "not a registration of this template (its vertices must come first, in order)")
 
 
 def check_rest_coords(rest: np.ndarray, n_scan_vertices: int, source: str | Path) -> np.ndarray:

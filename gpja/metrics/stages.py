@@ -1,7 +1,7 @@
 """Scores after every stage of one registration (synthetic data): where the alignment is won or lost.
 
 ``gpja register --stages-dir`` saves the mesh it starts from, the mesh after the warm-up and after each
-level (:func:`gpja.register.pipeline.stage_writer`). This module scores each of them as the final mesh
+level (:func:`gpja.results.stage_writer`). This module scores each of them as the final mesh
 is scored: the dense correspondence error against the ground truth (:mod:`gpja.metrics.correspondence`,
 with its regions) and, in the most frontal view, the render with the shared texture against the
 reference (PSNR over the scan's pixels, and the colour-mapped L1 image of the photometric figures).

@@ -17,8 +17,6 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 
 import numpy as np
-from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
-from scipy.spatial import cKDTree
 
 from gpja.errors import InputError
 
@@ -41,6 +39,8 @@ def scan_distances(scans: Sequence[np.ndarray], samples: int = 20000, seed: int 
         p of scan i and q of scan j, zero on the diagonal. ``d`` is the distance to the nearest *vertex*
         (scans are dense: MVS or 0.8 mm voxels), so differences below half a vertex spacing do not show.
     """
+    from scipy.spatial import cKDTree
+
     trees = [cKDTree(V) for V in scans]
     points = [sample_points(V, samples, seed) for V in scans]
     k = len(scans)
@@ -64,6 +64,8 @@ def registration_tree(names: Sequence[str], distances: np.ndarray, root: str) ->
         ``{"root": root, "parent": {name: parent name, root: None}, "order": [names, each after its
         parent], "depth": {name: edges from the root}}``.
     """
+    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+
     names = list(names)
     if root not in names:
         raise ValueError(f"the root {root!r} is not among the expressions {names}")
@@ -101,13 +103,32 @@ def plan_order(scans: Mapping[str, np.ndarray], root: str, samples: int = 20000,
     return plan
 
 
-def chain(plan: Mapping, expression: str) -> list[str]:
-    """The expressions from the root to ``expression`` (both included) in the plan's tree."""
+def parents_in_tree(plan: Mapping, expression: str) -> Mapping:
+    """The plan's ``parent`` map, after checking that ``expression`` is in the tree (InputError if not)."""
     parent = plan["parent"]
     if expression not in parent:
         raise InputError("registration order", f"{expression!r} is not in the registration tree "
                                                f"({', '.join(parent)})")
+    return parent
+
+
+def chain(plan: Mapping, expression: str) -> list[str]:
+    """The expressions from the root to ``expression`` (both included) in the plan's tree."""
+    parent = parents_in_tree(plan, expression)
     path = [expression]
     while parent[path[-1]] is not None:
         path.append(parent[path[-1]])
     return path[::-1]
+
+
+def start_expression(plan: Mapping, expression: str) -> str | None:
+    """The expression whose GPJA registration ``expression`` starts from; None = the template itself.
+
+    The root is the template's own expression, so it and its children start from the template (a
+    registration of the template to its own expression would only add that registration's drift).
+
+    Raises:
+        InputError: ``expression`` is not in the plan's tree.
+    """
+    start = parents_in_tree(plan, expression)[expression]
+    return None if start is None or start == plan["root"] else start

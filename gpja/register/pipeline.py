@@ -91,7 +91,7 @@ def warn_on_uncovered_views(mesh: TexturedMesh, targets: ExpressionTargets, sour
 
 
 def start_from(template: TexturedMesh, registered: TexturedMesh, source: str | Path) -> TexturedMesh:
-    """The template's topology at another expression's registered positions (``registration.gpja.init: tree``).
+    """The template's topology at another expression's registered positions (``registration.start: tree``).
 
     A registered mesh keeps the template's vertices first and in order (refinement appends the new
     ones, ``gpja.register.remesh``), so its first ``n_template`` positions are where that registration
@@ -103,11 +103,10 @@ def start_from(template: TexturedMesh, registered: TexturedMesh, source: str | P
             vertices, other UVs) or has non-finite positions.
     """
     from gpja.errors import InputError
+    from gpja.mesh import check_vertex_prefix
 
     n = len(template.V)
-    if len(registered.V) < n:
-        raise InputError(source, f"has {len(registered.V)} vertices, fewer than the template's {n}: "
-                                 "not a registration of this template")
+    check_vertex_prefix(len(registered.V), n, source)
     if registered.UV is None or len(registered.UV) < len(template.UV) or not np.allclose(
             registered.UV[: len(template.UV)], template.UV, atol=1e-5):
         raise InputError(source, "its texture coordinates do not start with the template's: "

@@ -67,3 +67,13 @@ def test_plan_order_on_scans_and_its_errors():
 def test_plan_order_is_deterministic_for_a_seed():
     scans = dict(zip("abc", spheres([0.0, 2.0, 1.0])))
     assert plan_order(scans, "a", samples=200, seed=3) == plan_order(scans, "a", samples=200, seed=3)
+
+
+def test_the_root_and_its_children_start_from_the_template():
+    from gpja.register.order import start_expression
+
+    names = ["T", "A", "B"]
+    plan = registration_tree(names, np.array([[0, 1, 3], [1, 0, 1], [3, 1, 0]], dtype=float), root="T")
+    assert [start_expression(plan, e) for e in names] == [None, None, "A"]
+    with pytest.raises(InputError, match="not in the registration tree"):
+        start_expression(plan, "C")

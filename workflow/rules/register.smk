@@ -1,4 +1,5 @@
 # Stage 2, GPJA: the subject's textured template, then every expression registered from it.
+from gpja.register.order import start_expression
 
 
 def registration_inputs(wildcards, expression=None):
@@ -83,11 +84,8 @@ def start_inputs(wildcards):
     if REG.get("start", "template") != "tree" or not registry.method(wildcards.method).follows_start:
         return {}
     with open(checkpoints.registration_order.get(subject=wildcards.subject).output[0]) as fh:
-        parent = json.load(fh)["parent"].get(wildcards.expression)
-    # the root is the template's own expression: its children start from the template itself
-    if parent is None or parent == TEMPLATE_EXPRESSION:
-        return {}
-    return {"start": results_path("registration", wildcards.subject, "gpja", parent)}
+        parent = start_expression(json.load(fh), wildcards.expression)
+    return {"start": results_path("registration", wildcards.subject, "gpja", parent)} if parent else {}
 
 
 def start_arg(wildcards, input):
