@@ -283,12 +283,23 @@ class LargeStepsParametrization:
         self.lam = float(lam)
         self.M = system_matrix(self.V, self.F, self.lam, laplacian=self.laplacian)
         self.solver = SmoothingSolver(self.M)
+        self._M_torch = None
         u = torch.from_numpy(self.M @ self.V)  # float64 product, then cast: exact to dtype rounding
         self.u = u.to(dtype=self.dtype, device=device if device is not None else "cpu").requires_grad_(True)
 
     def vertices(self) -> torch.Tensor:
         """Differentiable positions ``x = M^-1 u``: (n, 3) tensor of ``u``'s dtype/device, mm."""
         return from_differential(self.u, self.solver)
+
+    def shift(self, dx: torch.Tensor) -> None:
+        """Move the vertices by exactly ``dx`` ((n, 3), mm): ``u += M dx``, outside autograd.
+
+        The optimiser's moments are kept; the next :meth:`vertices` includes the move.
+        """
+        if self._M_torch is None:
+            self._M_torch = sparse_to_torch(self.M, dtype=self.u.dtype, device=self.u.device)
+        with torch.no_grad():
+            self.u += to_differential(dx.to(dtype=self.u.dtype, device=self.u.device), self._M_torch)
 
     def optimizer(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> UniformAdam:
         """A fresh :class:`UniformAdam` over ``[self.u]`` (call again after :meth:`rebuild`)."""

@@ -39,6 +39,12 @@ default data the colour loss hardly moves once depth joins). With one state
 per constraint, each step is normalised by its own constraint's gradients, so
 each constraint moves the surface by up to the learning rate whatever its
 units; the rotation then balances them as the paper intends.
+
+Tangential hold (beyond the paper, ``Schedule.hold_tangential``): during the
+levels, the vertices the warm-up did not move far are pulled back, by a small
+fraction per iteration, towards their starting positions along the surface
+(not along the normal), so untextured parts (nose, neck) stop sliding after the
+jaw (``gpja.register.hold``).
 """
 from __future__ import annotations
 
@@ -52,6 +58,7 @@ import torch
 
 from gpja.errors import GpjaError
 from gpja.mesh import TexturedMesh
+from gpja.register.hold import TangentialHold
 from gpja.register.hra import ExpressionTargets, Switches, render_constraint
 from gpja.register.largesteps import LargeStepsParametrization
 from gpja.register.remesh import refine_by_factor
@@ -90,6 +97,11 @@ class Schedule:
         optimizer_state: "shared" = one uniform Adam for every constraint (the paper's text names one
             optimiser); "per_constraint" = each constraint of the rotation steps with its own moments
             (beyond the paper; module docstring).
+        hold_tangential: per level iteration, the fraction of a held vertex's tangential offset from its
+            starting position that is removed (0 = off, the paper; beyond the paper, ``gpja.register.hold``).
+            Needs a warm-up, which tells what moves.
+        hold_moved_mm: (held, free): a vertex the warm-up moved at most ``held`` mm is held fully, one
+            it moved ``free`` mm or more not at all (linear between, then smoothed).
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -101,6 +113,8 @@ class Schedule:
     warmup_iterations: int = 0
     warmup_geometry: bool = False
     optimizer_state: str = "shared"
+    hold_tangential: float = 0.0
+    hold_moved_mm: tuple[float, float] = (0.75, 2.5)
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -128,6 +142,10 @@ class Schedule:
             raise ValueError(f"lr_fraction must be > 0, got {self.lr_fraction}")
         if not 0.0 < self.lr_decay <= 1.0:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
+        if not 0.0 <= float(self.hold_tangential) < 1.0:
+            raise ValueError(f"hold_tangential must be in [0, 1), got {self.hold_tangential}")
+        if len(self.hold_moved_mm) != 2 or not 0.0 <= float(self.hold_moved_mm[0]) < float(self.hold_moved_mm[1]):
+            raise ValueError(f"hold_moved_mm must be two distances 0 <= held < free (mm), got {list(self.hold_moved_mm)}")
 
     def pool(self, level: int) -> int:
         """The colour constraint's pooling box (px) at ``level``."""
@@ -185,19 +203,31 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     log = RegistrationLog()
     common = dict(targets=targets, texture=texture, mask_texture=mask_texture, render=render,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
+    hold = None
     if schedule.warmup_iterations and switches.color:
+        start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
                                      warmup_switches(switches, schedule), schedule, 1, **common)
         log.levels.append({"stage": "warmup", **entry})
         if on_stage is not None:
             on_stage("warmup", mesh)
+        if schedule.hold_tangential > 0:
+            hold = TangentialHold.after_warmup(start_mesh, mesh, schedule.lambdas[0], schedule.hold_tangential,
+                                               tuple(schedule.hold_moved_mm))
+            progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
+                     f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in the warm-up)")
+    elif schedule.hold_tangential > 0:
+        progress("hold: off (no warm-up ran to tell moving parts from still ones)")
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
         start = time.perf_counter()
         if level > 0:
-            mesh = refine_by_factor(mesh, schedule.refine_factor)
+            if hold is None:
+                mesh = refine_by_factor(mesh, schedule.refine_factor)
+            else:
+                mesh, hold = hold.refine(mesh, schedule.refine_factor)
         refine_s = time.perf_counter() - start
         mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter, switches,
-                                     schedule, schedule.pool(level), **common)
+                                     schedule, schedule.pool(level), hold=hold, **common)
         entry["seconds"] = round(entry["seconds"] + refine_s, 3)
         entry["setup_seconds"] = round(entry["setup_seconds"] + refine_s, 3)
         log.levels.append({"stage": "level", "level": level, **entry})
@@ -224,12 +254,13 @@ def constraint_optimizers(param: LargeStepsParametrization, rotation: tuple[str,
 def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switches: Switches,
                    schedule: Schedule, pool: int, *, targets: ExpressionTargets, texture: torch.Tensor,
                    mask_texture: torch.Tensor, render, cull_backfaces: bool, progress: Callable[[str], None],
-                   progress_every: int) -> tuple[TexturedMesh, dict]:
+                   progress_every: int, hold: TangentialHold | None = None) -> tuple[TexturedMesh, dict]:
     """``n_iter`` LargeSteps iterations on one fixed topology; returns the mesh and the level's log entry.
 
     ``name`` labels progress lines and errors ("level 2/3", "warm-up"). The first step is
     ``schedule.lr_fraction`` x this mesh's mean edge length (mm), decaying as the schedule says.
-    ``render``: as in :func:`optimise` (None = the CPU renderer).
+    ``render``: as in :func:`optimise` (None = the CPU renderer). ``hold``: the tangential hold on
+    this mesh's vertices, applied before every iteration's render (None = none, the paper).
     """
     start = time.perf_counter()
     rotation = switches.rotation()
@@ -250,6 +281,10 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
             group["lr"] = schedule.learning_rate(lr, it, n_iter)
         t0 = time.perf_counter()
         x = param.vertices()
+        if hold is not None:
+            dx = hold.correction(x)
+            param.shift(dx)
+            x = x + dx  # what vertices() now returns, without a second solve
         t1 = time.perf_counter()
         loss, _ = render_constraint(constraint, x, topo, targets, switches, uv, texture, mask_texture,
                                     render=render, cull_backfaces=cull_backfaces, color_pool=pool)
@@ -276,4 +311,5 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
     return mesh, {"lambda": lam, "iterations": n_iter, "learning_rate_mm": lr, "color_pool": pool,
                   "vertices": int(len(mesh.V)), "faces": int(len(mesh.F)),
                   "seconds": round(time.perf_counter() - start, 3), "setup_seconds": round(setup_s, 3),
-                  "seconds_by_stage": {k: round(v, 3) for k, v in timings.items()}, "losses": losses}
+                  "seconds_by_stage": {k: round(v, 3) for k, v in timings.items()}, "losses": losses,
+                  "hold": None if hold is None else {"rate": hold.rate, "held_fraction": round(hold.held_fraction, 4)}}

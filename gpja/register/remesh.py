@@ -65,15 +65,23 @@ def split_long_edges(mesh: TexturedMesh, max_edge_mm: float) -> TexturedMesh:
         The refined mesh: the original vertices keep their indices and come
         first; new vertices follow. The texture image is shared.
     """
+    return _split_long_edges(mesh, max_edge_mm, None)[0]
+
+
+def _split_long_edges(mesh: TexturedMesh, max_edge_mm: float,
+                      rows: np.ndarray | None) -> tuple[TexturedMesh, np.ndarray | None]:
+    """:func:`split_long_edges`, and per-vertex ``rows`` (n, k) extended by the same midpoints (or None)."""
     V, F = mesh.V, mesh.F
     edges, face_edge = unique_edges(F)
     length = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
     split = length > max_edge_mm
     if not split.any():
-        return mesh
+        return mesh, rows
     mid_v = np.full(len(edges), -1, dtype=np.int64)
     mid_v[split] = len(V) + np.arange(int(split.sum()))
     V_new = np.concatenate([V, 0.5 * (V[edges[split, 0]] + V[edges[split, 1]])])
+    if rows is not None:
+        rows = np.concatenate([rows, 0.5 * (rows[edges[split, 0]] + rows[edges[split, 1]])])
     F_new = _split_faces(F, face_edge, split, mid_v)
     UV_new = F_uv_new = None
     if mesh.has_uv:
@@ -86,7 +94,7 @@ def split_long_edges(mesh: TexturedMesh, max_edge_mm: float) -> TexturedMesh:
         mid_uv[uv_split] = len(mesh.UV) + np.arange(int(uv_split.sum()))
         UV_new = np.concatenate([mesh.UV, 0.5 * (mesh.UV[uv_edges[uv_split, 0]] + mesh.UV[uv_edges[uv_split, 1]])])
         F_uv_new = _split_faces(mesh.F_uv, uv_face_edge, uv_split, mid_uv)
-    return TexturedMesh(V_new, F_new, UV_new, F_uv_new, mesh.texture)
+    return TexturedMesh(V_new, F_new, UV_new, F_uv_new, mesh.texture), rows
 
 
 def refine_by_factor(mesh: TexturedMesh, factor: float = 2.5) -> TexturedMesh:
@@ -95,12 +103,21 @@ def refine_by_factor(mesh: TexturedMesh, factor: float = 2.5) -> TexturedMesh:
     New vertices = number of split edges, so the threshold is the edge-length
     quantile that splits ``(factor - 1) * n_vertices`` edges.
     """
+    return refine_carrying(mesh, factor, None)[0]
+
+
+def refine_carrying(mesh: TexturedMesh, factor: float,
+                    rows: np.ndarray | None) -> tuple[TexturedMesh, np.ndarray | None]:
+    """:func:`refine_by_factor`, and per-vertex ``rows`` (n, k) float carried along: each new vertex
+    gets the mean of its edge's two rows, as its position is (None passes through)."""
     if not 1.0 < factor <= 4.0:
         raise ValueError(f"refinement factor must be in (1, 4], got {factor}")
+    if rows is not None and len(rows) != len(mesh.V):
+        raise ValueError(f"rows ({len(rows)}) must have one entry per vertex ({len(mesh.V)})")
     edges, _ = unique_edges(mesh.F)
     length = np.sort(np.linalg.norm(mesh.V[edges[:, 0]] - mesh.V[edges[:, 1]], axis=1))
     n_split = int(round((factor - 1.0) * len(mesh.V)))
     if n_split >= len(length):
-        return split_long_edges(mesh, 0.0)
+        return _split_long_edges(mesh, 0.0, rows)
     threshold = length[len(length) - n_split - 1]
-    return split_long_edges(mesh, threshold)
+    return _split_long_edges(mesh, threshold, rows)

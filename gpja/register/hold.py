@@ -1,0 +1,102 @@
+"""The tangential hold (beyond the paper, ``Schedule.hold_tangential``): what the warm-up left in place stays there.
+
+Measured on the synthetic benchmark (docs/experiments.md, "Issue 15: the tangential hold"): most of
+a face does not move between two expressions (the template itself, left unmoved, scores a median
+correspondence error of 0.00 mm on ``1_neutral``, nose 0.04), yet GPJA moved it. Registering the
+template to its own expression slides the nose 1.0 mm, and on a closed-mouth expression the neck
+slides 3-5 mm after the jaw. Nothing in the paper's energy charges a surface for sliding along
+itself where it has no texture: depth and normals are blind to it, and every step is smoothed by
+``(I + lambda L)^-1`` over many edges, so the jaw's motion spreads into the neck.
+
+The hold is a weak spring on that sliding. After the warm-up (which moves the lips and the jaw),
+each vertex gets a weight from how far the warm-up moved it: 1 where it moved less than
+``hold_moved_mm[0]``, 0 beyond ``hold_moved_mm[1]``, linear in between, then smoothed once by the
+first level's ``(I + lambda L)^-1``. At every iteration of the levels, a held vertex loses
+``hold_tangential x weight`` of its tangential offset from its *starting* position (the component
+in the plane of its starting normal), so motion along the normal (onto the scan) is free, the
+warm-up's own drift is pulled back, and what the warm-up moved far (the mouth, a jaw) moves freely.
+The correction is applied to the LargeSteps variable as ``u += (I + lambda L) dx``, so the vertices
+move by exactly ``dx``. New vertices of a refinement inherit the mean start, normal and weight of
+their edge's ends, as their position does.
+
+Without a warm-up (``warmup_iterations: 0``, or the colour constraint off) there is nothing to tell
+moving parts from still ones, and the hold stays off.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from gpja.mesh import TexturedMesh
+from gpja.register.largesteps import SmoothingSolver
+from gpja.register.laplacian import system_matrix
+from gpja.register.remesh import refine_carrying
+from gpja.render.normals import vertex_normals
+
+
+def hold_weights(start: np.ndarray, moved: np.ndarray, F: np.ndarray, lam: float,
+                 moved_mm: tuple[float, float]) -> np.ndarray:
+    """Per-vertex hold weight from how far a first phase moved each vertex.
+
+    Args:
+        start: (n, 3) float64 positions before it, mm; moved: (n, 3) after it, mm.
+        F: (m, 3) int64 faces. lam: the smoothing's lambda (the first level's).
+        moved_mm: (held, free): displacement (mm) at or below which the weight is 1, at or above which 0.
+    Returns:
+        (n,) float64 in [0, 1], smoothed by ``(I + lam L)^-1``.
+    """
+    held, free = moved_mm
+    distance = np.linalg.norm(np.asarray(moved) - np.asarray(start), axis=1)
+    raw = np.clip((free - distance) / (free - held), 0.0, 1.0)
+    if lam > 0:
+        solver = SmoothingSolver(system_matrix(np.asarray(start, dtype=np.float64), F, lam))
+        raw = solver.solve(torch.from_numpy(raw[:, None])).numpy()[:, 0]
+    return np.clip(raw, 0.0, 1.0)
+
+
+@dataclass
+class TangentialHold:
+    """The spring of the hold on one mesh's vertices.
+
+    Attributes:
+        start: (n, 3) float64 starting positions, mm.
+        normals: (n, 3) float64 unit vertex normals of the starting surface.
+        weight: (n,) float64 in [0, 1] (:func:`hold_weights`).
+        rate: fraction of a fully held vertex's tangential offset removed per iteration.
+    """
+
+    start: np.ndarray
+    normals: np.ndarray
+    weight: np.ndarray
+    rate: float
+
+    @classmethod
+    def after_warmup(cls, start: TexturedMesh, warmed: TexturedMesh, lam: float, rate: float,
+                     moved_mm: tuple[float, float]) -> "TangentialHold":
+        """The hold of a registration that started at ``start`` and was at ``warmed`` after its warm-up."""
+        normals = vertex_normals(torch.from_numpy(start.V), torch.from_numpy(start.F)).numpy()
+        return cls(start.V.copy(), normals, hold_weights(start.V, warmed.V, start.F, lam, moved_mm), float(rate))
+
+    @property
+    def held_fraction(self) -> float:
+        """Fraction of the vertices held with weight above 0.5."""
+        return float(np.mean(self.weight > 0.5))
+
+    def refine(self, mesh: TexturedMesh, factor: float) -> tuple[TexturedMesh, "TangentialHold"]:
+        """``refine_by_factor(mesh, factor)`` and this hold on the refined vertices."""
+        rows = np.concatenate([self.start, self.normals, self.weight[:, None]], axis=1)
+        refined, rows = refine_carrying(mesh, factor, rows)
+        normals = rows[:, 3:6] / np.linalg.norm(rows[:, 3:6], axis=1, keepdims=True).clip(1e-12)
+        return refined, TangentialHold(rows[:, :3], normals, rows[:, 6], self.rate)
+
+    def correction(self, x: torch.Tensor) -> torch.Tensor:
+        """The move ``dx`` (n, 3) (dtype of ``x``, mm) that removes ``rate x weight`` of each vertex's
+        tangential offset from its start; ``x``: (n, 3) current positions, mm."""
+        start = torch.as_tensor(self.start, dtype=x.dtype)
+        normals = torch.as_tensor(self.normals, dtype=x.dtype)
+        weight = torch.as_tensor(self.weight, dtype=x.dtype)[:, None]
+        offset = x.detach() - start
+        tangential = offset - (offset * normals).sum(1, keepdim=True) * normals
+        return -self.rate * weight * tangential

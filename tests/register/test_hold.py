@@ -1,0 +1,100 @@
+"""gpja.register.hold: the tangential hold's weights, correction and refinement."""
+import numpy as np
+import pytest
+import torch
+
+from gpja.mesh import TexturedMesh
+from gpja.register.hold import TangentialHold, hold_weights
+from gpja.register.largesteps import LargeStepsParametrization
+from gpja.register.multiscale import Schedule
+from gpja.register.remesh import refine_by_factor, refine_carrying
+
+#: Tolerance of exact identities (float64 arithmetic).
+EXACT = 1e-10
+
+
+def grid(n: int = 6, size: float = 10.0) -> TexturedMesh:
+    """A flat n x n grid in the z = 0 plane (mm), normals +z, UVs from x, y."""
+    xs = np.linspace(0.0, size, n)
+    X, Y = np.meshgrid(xs, xs)
+    V = np.stack([X.ravel(), Y.ravel(), np.zeros(n * n)], axis=1)
+    F = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
+            F += [(a, b, d), (a, d, c)]
+    F = np.array(F, dtype=np.int64)
+    return TexturedMesh(V, F, V[:, :2] / size, F.copy())
+
+
+def test_the_correction_removes_its_rate_of_the_tangential_offset_only():
+    mesh = grid()
+    hold = TangentialHold(mesh.V.copy(), np.tile([0.0, 0.0, 1.0], (len(mesh.V), 1)), np.ones(len(mesh.V)), 0.25)
+    offset = np.array([2.0, -1.0, 3.0])  # (2, -1) along the plane, 3 along the normal
+    dx = hold.correction(torch.from_numpy(mesh.V + offset))
+    np.testing.assert_allclose(dx.numpy(), np.tile([-0.5, 0.25, 0.0], (len(mesh.V), 1)), atol=EXACT)
+
+
+def test_the_correction_scales_with_the_weight_and_is_zero_at_the_start():
+    mesh = grid()
+    weight = np.linspace(0.0, 1.0, len(mesh.V))
+    hold = TangentialHold(mesh.V.copy(), np.tile([0.0, 0.0, 1.0], (len(mesh.V), 1)), weight, 0.5)
+    assert torch.count_nonzero(hold.correction(torch.from_numpy(mesh.V))) == 0
+    dx = hold.correction(torch.from_numpy(mesh.V + [1.0, 0.0, 0.0])).numpy()
+    np.testing.assert_allclose(dx[:, 0], -0.5 * weight, atol=EXACT)
+
+
+def test_weights_hold_what_did_not_move_and_free_what_moved_far():
+    mesh = grid(8)
+    moved = mesh.V.copy()
+    far = mesh.V[:, 0] > 7.0
+    moved[far] += [0.0, 0.0, 10.0]
+    moved[~far] += [0.1, 0.0, 0.0]
+    raw = hold_weights(mesh.V, moved, mesh.F, 0.0, (0.75, 2.5))
+    np.testing.assert_array_equal(raw[far], 0.0)
+    np.testing.assert_array_equal(raw[~far], 1.0)
+    # linear between the two distances
+    half = hold_weights(mesh.V, mesh.V + [1.625, 0.0, 0.0], mesh.F, 0.0, (0.75, 2.5))
+    np.testing.assert_allclose(half, 0.5, atol=EXACT)
+    # smoothing keeps the values in [0, 1] and spreads the step across the boundary
+    smooth = hold_weights(mesh.V, moved, mesh.F, 10.0, (0.75, 2.5))
+    assert smooth.min() >= 0.0 and smooth.max() <= 1.0
+    assert 0.0 < smooth[far].max() and smooth[~far].min() < 1.0
+    assert smooth[mesh.V[:, 0] < 2.0].mean() > 0.75 and smooth[far].mean() < 0.5
+
+
+def test_refinement_carries_rows_as_it_places_the_new_vertices():
+    mesh = grid(5)
+    refined, rows = refine_carrying(mesh, 2.5, mesh.V.copy())
+    np.testing.assert_allclose(rows, refined.V, atol=EXACT)  # identity: positions carried are the positions
+    assert np.array_equal(refined.F, refine_by_factor(mesh, 2.5).F)
+    with pytest.raises(ValueError, match="one entry per vertex"):
+        refine_carrying(mesh, 2.5, mesh.V[:-1])
+
+
+def test_a_refined_hold_keeps_unit_normals_and_the_old_vertices_rows():
+    mesh = grid(5)
+    normals = np.tile([0.0, 0.6, 0.8], (len(mesh.V), 1))
+    hold = TangentialHold(mesh.V.copy(), normals, np.linspace(0, 1, len(mesh.V)), 0.1)
+    refined, fine = hold.refine(mesh, 2.0)
+    assert len(fine.start) == len(refined.V) > len(mesh.V)
+    np.testing.assert_allclose(np.linalg.norm(fine.normals, axis=1), 1.0, atol=EXACT)
+    np.testing.assert_array_equal(fine.weight[: len(mesh.V)], hold.weight)
+    assert fine.rate == hold.rate
+
+
+def test_shift_moves_the_parametrised_vertices_by_exactly_dx():
+    mesh = grid(5)
+    param = LargeStepsParametrization(mesh.V, mesh.F, 5.0, dtype=torch.float64)
+    before = param.vertices().detach().clone()
+    dx = torch.from_numpy(np.random.default_rng(0).normal(size=mesh.V.shape))
+    param.shift(dx)
+    np.testing.assert_allclose((param.vertices().detach() - before).numpy(), dx.numpy(), atol=1e-9)
+    assert param.u.requires_grad
+
+
+@pytest.mark.parametrize("bad", [{"hold_tangential": -0.1}, {"hold_tangential": 1.0},
+                                 {"hold_moved_mm": (2.0, 1.0)}, {"hold_moved_mm": (1.0,)}])
+def test_schedule_refuses_a_bad_hold(bad):
+    with pytest.raises(ValueError, match="hold"):
+        Schedule(lambdas=(10.0,), iterations=(1,), **bad)
