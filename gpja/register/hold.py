@@ -24,7 +24,7 @@ moving parts from still ones, and the hold stays off.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -71,6 +71,7 @@ class TangentialHold:
     normals: np.ndarray
     weight: np.ndarray
     rate: float
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def after_warmup(cls, start: TexturedMesh, warmed: TexturedMesh, lam: float, rate: float,
@@ -91,12 +92,17 @@ class TangentialHold:
         normals = rows[:, 3:6] / np.linalg.norm(rows[:, 3:6], axis=1, keepdims=True).clip(1e-12)
         return refined, TangentialHold(rows[:, :3], normals, rows[:, 6], self.rate)
 
+    def _tensors(self, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """start, normals, weight (n, 1) as tensors of ``dtype``, converted once (called every iteration)."""
+        if dtype not in self._cache:
+            self._cache[dtype] = (torch.as_tensor(self.start, dtype=dtype), torch.as_tensor(self.normals, dtype=dtype),
+                            torch.as_tensor(self.weight, dtype=dtype)[:, None])
+        return self._cache[dtype]
+
     def correction(self, x: torch.Tensor) -> torch.Tensor:
         """The move ``dx`` (n, 3) (dtype of ``x``, mm) that removes ``rate x weight`` of each vertex's
         tangential offset from its start; ``x``: (n, 3) current positions, mm."""
-        start = torch.as_tensor(self.start, dtype=x.dtype)
-        normals = torch.as_tensor(self.normals, dtype=x.dtype)
-        weight = torch.as_tensor(self.weight, dtype=x.dtype)[:, None]
+        start, normals, weight = self._tensors(x.dtype)
         offset = x.detach() - start
         tangential = offset - (offset * normals).sum(1, keepdim=True) * normals
         return -self.rate * weight * tangential
