@@ -102,13 +102,6 @@ class Schedule:
             Needs a warm-up, which tells what moves.
         hold_moved_mm: (held, free): a vertex the warm-up moved at most ``held`` mm is held fully, one
             it moved ``free`` mm or more not at all (linear between, then smoothed).
-        jaw_iterations: iterations of the jaw stage, a rigid motion of the lower face blended by the
-            template's jaw weights, before the warm-up (0 = none, the paper; beyond the paper,
-            ``gpja.register.jaw``). Runs the warm-up's constraints.
-        jaw_lr_deg, jaw_lr_mm: the jaw stage's first step, degrees of rotation and mm of translation
-            (decaying by ``lr_decay`` over the stage).
-        jaw_geometry: the jaw stage also runs the depth and normal constraints (false = the unmasked
-            colour alone: a rigid jaw cannot cave in, and colour, not depth, tells its pose; docs/experiments.md).
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -122,10 +115,6 @@ class Schedule:
     optimizer_state: str = "shared"
     hold_tangential: float = 0.0
     hold_moved_mm: tuple[float, float] = (0.75, 2.5)
-    jaw_iterations: int = 0
-    jaw_lr_deg: float = 1.0
-    jaw_lr_mm: float = 1.0
-    jaw_geometry: bool = False
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -153,10 +142,6 @@ class Schedule:
             raise ValueError(f"lr_fraction must be > 0, got {self.lr_fraction}")
         if not 0.0 < self.lr_decay <= 1.0:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
-        if int(self.jaw_iterations) < 0:
-            raise ValueError(f"jaw_iterations must be >= 0, got {self.jaw_iterations}")
-        if not (float(self.jaw_lr_deg) > 0.0 and float(self.jaw_lr_mm) > 0.0):
-            raise ValueError(f"jaw_lr_deg and jaw_lr_mm must be > 0, got {self.jaw_lr_deg}, {self.jaw_lr_mm}")
         if not 0.0 <= float(self.hold_tangential) < 1.0:
             raise ValueError(f"hold_tangential must be in [0, 1), got {self.hold_tangential}")
         if len(self.hold_moved_mm) != 2 or not 0.0 <= float(self.hold_moved_mm[0]) < float(self.hold_moved_mm[1]):
@@ -219,11 +204,6 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     common = dict(targets=targets, texture=texture, mask_texture=mask_texture, render=render,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
     hold = None
-    if schedule.jaw_iterations:
-        mesh, entry = optimise_jaw(mesh, switches, schedule, **common)
-        log.levels.append({"stage": "jaw", **entry})
-        if on_stage is not None:
-            on_stage("jaw", mesh)
     if schedule.warmup_iterations and switches.color:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
@@ -254,31 +234,6 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage(f"level{level + 1}", mesh)
     return mesh, log
-
-
-def optimise_jaw(mesh: TexturedMesh, switches: Switches, schedule: Schedule, *, targets: ExpressionTargets,
-                 texture: torch.Tensor, mask_texture: torch.Tensor, render, cull_backfaces: bool,
-                 progress: Callable[[str], None], progress_every: int) -> tuple[TexturedMesh, dict]:
-    """The jaw stage (``gpja.register.jaw``) with the warm-up's constraints; returns the posed mesh and its
-    log entry."""
-    from gpja.register.jaw import fit_jaw
-
-    if switches.color and not schedule.jaw_geometry:
-        jaw_switches = Switches(color=True, depth=False, normal=False, mask=False)
-    elif switches.color:
-        jaw_switches = Switches(color=True, depth=switches.depth, normal=switches.normal, mask=False)
-    else:
-        jaw_switches = switches
-    topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
-    uv = torch.tensor(mesh.UV, dtype=torch.float32)
-
-    def loss(constraint: str, V: torch.Tensor) -> torch.Tensor:
-        return render_constraint(constraint, V, topo, targets, jaw_switches, uv, texture, mask_texture,
-                                 render=render, cull_backfaces=cull_backfaces, color_pool=schedule.pool(0))[0]
-
-    return fit_jaw(mesh, mask_texture, int(schedule.jaw_iterations), float(schedule.jaw_lr_deg),
-                   float(schedule.jaw_lr_mm), float(schedule.lr_decay), loss, jaw_switches.rotation(),
-                   progress=progress, progress_every=progress_every // 2 if progress_every else 0)
 
 
 def constraint_optimizers(param: LargeStepsParametrization, rotation: tuple[str, ...], lr: float,

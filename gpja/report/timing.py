@@ -107,8 +107,7 @@ def log_rows(method: str, logs: list[dict]) -> list[tuple[str, list, list]]:
     depth = max((len(g.get("levels") or []) for g in logs), default=0)
     for i in range(depth):
         levels = [g["levels"][i] for g in logs if len(g.get("levels") or []) > i]
-        kind = levels[0].get("stage")
-        stage = {"warmup": "warm-up", "jaw": "jaw stage"}.get(kind) or f"level {levels[0].get('level', i)}"
+        stage = "warm-up" if levels[0].get("stage") == "warmup" else f"level {levels[0].get('level', i)}"
         rows.append((f"{method_label(method)} {stage}", [lv.get("seconds") for lv in levels],
                      [lv.get("vertices") for lv in levels]))
     return [r for r in rows if any(is_number(s) for s in r[1])]
