@@ -535,11 +535,13 @@ def build_parser() -> argparse.ArgumentParser:
 def limit_threads(n: int) -> None:
     """Use at most ``n`` threads: jobs sharing a machine otherwise oversubscribe it (torch's
     OpenMP workers spin while waiting, so two jobs of 2 threads on 2 cores run several times slower)."""
+    import cv2
     import numba
     import torch
 
     torch.set_num_threads(n)
     numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    cv2.setNumThreads(n)  # the flow stage's DIS optical flow (gpja.register.flow)
 
 
 def main(argv: list[str] | None = None) -> int:

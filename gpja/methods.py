@@ -37,7 +37,7 @@ class Method:
         without: the constraints switched off (ablation variants; empty otherwise).
         entry: ``"module:function"`` that runs a baseline (kind ``baseline`` only).
         schedule: the ``registration`` config section a GPJA registration takes its schedule from
-            (``gpja``; ``paper`` for the paper's own schedule).
+            (``gpja``; ``paper`` for the paper's own schedule, ``no_flow`` for GPJA without the flow stage).
     """
 
     name: str
@@ -64,7 +64,7 @@ class Method:
     @property
     def follows_start(self) -> bool:
         """Starts where GPJA starts (``registration.start``); the paper's schedule always from the template."""
-        return self.registers_with_gpja and self.schedule == "gpja"
+        return self.registers_with_gpja and self.schedule != "paper"
 
     @property
     def ablation_label(self) -> str | tuple[str, str]:
@@ -96,6 +96,8 @@ def _ablation(constraint: str) -> Method:
 METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja", "GPJA", "gpja"),
     *(_ablation(c) for c in CONSTRAINTS),
+    # GPJA before the flow stage (the unmasked-colour warm-up instead): what the flow stage buys
+    Method("gpja-no_flow", "GPJA w/o flow (warm-up)", "ablation", schedule="no_flow"),
     # the paper's method as published (no warm-up, one Adam, from the template): what each departure buys
     Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),

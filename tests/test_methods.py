@@ -23,7 +23,8 @@ def toy_baseline(template_dir, source, subject, expression, output, section, tem
 
 def test_registry_names_labels_and_switches():
     assert M.names("gpja") == ["gpja"]
-    assert M.names("ablation") == ["gpja-no_normal", "gpja-no_depth", "gpja-no_color", "gpja-no_mask", "gpja-paper"]
+    assert M.names("ablation") == ["gpja-no_normal", "gpja-no_depth", "gpja-no_color", "gpja-no_mask", "gpja-no_flow",
+                                   "gpja-paper"]
     assert M.names("baseline") == ["nicp"]
     assert [M.label(m) for m in ("gpja", "nicp", "gpja-no_mask", "nphm")] == ["GPJA", "NICP", "GPJA w/o mask", "nphm"]
     assert M.method("gpja-no_depth").without == ("depth",) and M.method("gpja").without == ()
@@ -35,6 +36,8 @@ def test_registry_names_labels_and_switches():
     assert paper.without == () and paper.schedule == "paper" and paper.ablation_label == "GPJA (paper schedule)"
     assert not paper.follows_start and M.method("gpja").follows_start and M.method("gpja-no_depth").follows_start
     assert not M.method("nicp").follows_start
+    no_flow = M.method("gpja-no_flow")  # the warm-up instead of the flow stage: its own section, GPJA's start
+    assert no_flow.without == () and no_flow.schedule == "no_flow" and no_flow.follows_start
 
 
 @pytest.mark.parametrize("change, key", [

@@ -237,8 +237,11 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
     assert json.loads((work / f"results/{cfg['dataset']}/S01/gpja-paper/{closed}.json").read_text())["start"] == "template"
     stages = json.loads((work / f"results/{cfg['dataset']}/S01/gpja/stages/{closed}.json").read_text())["stages"]
     gpja_cfg = cfg["registration"]["gpja"]
-    assert [r["stage"] for r in stages] == (["start"] + ["warmup"] * bool(gpja_cfg.get("warmup_iterations"))
-                                            + [f"level{k + 1}" for k in range(len(gpja_cfg["lambdas"]))])
+    flow_levels = gpja_cfg.get("flow_levels", 1) if gpja_cfg.get("flow_rounds") else 0
+    expected = ["start"] + ["flow"] * (flow_levels > 0) + ["warmup"] * bool(gpja_cfg.get("warmup_iterations"))
+    for k in range(len(gpja_cfg["lambdas"])):
+        expected += [f"flow{k + 1}"] * (0 < k < flow_levels) + [f"level{k + 1}"]
+    assert [r["stage"] for r in stages] == expected
     quality = json.loads((template_dir / "texture_quality.json").read_text())
     assert quality["observed"]["psnr"] > 15.0 and (template_dir / "texture_error.png").is_file()
     for expression in cfg["expressions"]:

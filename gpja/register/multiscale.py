@@ -14,6 +14,13 @@ runs 1500 iterations; a shorter schedule (the default config's 3 x 150) takes
 proportionally larger steps (``lr_fraction``) that decay within each level
 (``lr_decay``), see README "Registration settings".
 
+Flow stage (beyond the paper, ``Schedule.flow_rounds``, the default): before the descent of each of
+the first ``flow_levels`` levels, the mesh is rendered with the shared texture and matched to every
+reference photograph by optical flow; the matches, lifted onto the scan, move the mesh by one smooth
+displacement (``gpja.register.flow``). Flow reaches the 15-25 mm of a closing jaw, which the colour
+constraint's per-pixel descent does not, and it pins what the descent would slide (docs/experiments.md,
+"Issue 15: optical-flow matching"). With it, the warm-up below is not needed (the default runs none).
+
 Correspondence warm-up (beyond the paper, ``Schedule.warmup_iterations``):
 the template is built from the mouth-open expression, and for a closed mouth
 the depth and normal constraints are satisfied as soon as the mouth socket's
@@ -102,6 +109,10 @@ class Schedule:
             Needs a warm-up, which tells what moves.
         hold_moved_mm: (held, free): a vertex the warm-up moved at most ``held`` mm is held fully, one
             it moved ``free`` mm or more not at all (linear between, then smoothed).
+        flow_rounds: rounds of optical-flow matching (``gpja.register.flow``) before a level's descent
+            (0 = none, the paper; beyond the paper). Only runs when the colour constraint is on.
+        flow_levels: how many levels, from the first, start with those rounds.
+        flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -115,6 +126,9 @@ class Schedule:
     optimizer_state: str = "shared"
     hold_tangential: float = 0.0
     hold_moved_mm: tuple[float, float] = (0.75, 2.5)
+    flow_rounds: int = 0
+    flow_levels: int = 1
+    flow_smoothness: float = 30.0
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -142,6 +156,10 @@ class Schedule:
             raise ValueError(f"lr_fraction must be > 0, got {self.lr_fraction}")
         if not 0.0 < self.lr_decay <= 1.0:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
+        if int(self.flow_rounds) < 0 or int(self.flow_levels) < 0:
+            raise ValueError(f"flow_rounds and flow_levels must be >= 0, got {self.flow_rounds}, {self.flow_levels}")
+        if not float(self.flow_smoothness) > 0.0:
+            raise ValueError(f"flow_smoothness must be > 0, got {self.flow_smoothness}")
         if not 0.0 <= float(self.hold_tangential) < 1.0:
             raise ValueError(f"hold_tangential must be in [0, 1), got {self.hold_tangential}")
         if len(self.hold_moved_mm) != 2 or not 0.0 <= float(self.hold_moved_mm[0]) < float(self.hold_moved_mm[1]):
@@ -204,6 +222,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     common = dict(targets=targets, texture=texture, mask_texture=mask_texture, render=render,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
     hold = None
+    if schedule.flow_rounds and schedule.flow_levels and switches.color:
+        mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
     if schedule.warmup_iterations and switches.color:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
@@ -226,6 +246,12 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
             else:
                 mesh, hold = hold.refine(mesh, schedule.refine_factor)
         refine_s = time.perf_counter() - start
+        if schedule.flow_rounds and switches.color and 0 < level < schedule.flow_levels:
+            mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage,
+                              f"flow{level + 1}")
+            if hold is not None:  # the hold's starting positions are per vertex: the flow moved them
+                progress("hold: off from here (the flow stage moved the held vertices)")
+                hold = None
         mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter, switches,
                                      schedule, schedule.pool(level), hold=hold, **common)
         entry["seconds"] = round(entry["seconds"] + refine_s, 3)
@@ -234,6 +260,21 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage(f"level{level + 1}", mesh)
     return mesh, log
+
+
+def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,
+               mask_texture: torch.Tensor, render, progress: Callable[[str], None], log: RegistrationLog,
+               on_stage: Callable[[str, TexturedMesh], None] | None, name: str) -> TexturedMesh:
+    """``schedule.flow_rounds`` rounds of optical-flow matching (``gpja.register.flow``), logged and saved
+    as stage ``name``; returns the moved mesh (same topology)."""
+    from gpja.register.flow import FlowSettings, align_by_flow
+
+    settings = FlowSettings(rounds=int(schedule.flow_rounds), smoothness=float(schedule.flow_smoothness))
+    mesh, entry = align_by_flow(mesh, targets, texture, mask_texture, settings, render=render, progress=progress)
+    log.levels.append({**entry, "stage": name})
+    if on_stage is not None:
+        on_stage(name, mesh)
+    return mesh
 
 
 def constraint_optimizers(param: LargeStepsParametrization, rotation: tuple[str, ...], lr: float,

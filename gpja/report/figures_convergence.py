@@ -25,6 +25,8 @@ def loss_curves(log: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], li
     curves: dict[str, list] = {}
     starts, start = [], 0
     for level in log.get("levels") or []:
+        if "iterations" not in level:  # a flow stage (gpja.register.flow) matches images, it has no descent
+            continue
         starts.append(start)
         n = int(level["iterations"])
         for name, values in (level.get("losses") or {}).items():

@@ -101,13 +101,23 @@ def load_logs(results: str | Path, subjects, method: str, expressions) -> list[d
             for s in subjects for e in expressions]
 
 
+def stage_label(entry: dict, index: int) -> str:
+    """A registration log entry's row label: ``warm-up``, ``flow`` / ``flow2`` (flow stages), ``level k``."""
+    stage = str(entry.get("stage", ""))
+    if stage == "warmup":
+        return "warm-up"
+    if stage.startswith("flow"):
+        return stage
+    return f"level {entry.get('level', index)}"
+
+
 def log_rows(method: str, logs: list[dict]) -> list[tuple[str, list, list]]:
     """``(step, seconds, vertices)`` rows from a method's logs: the total, then each level (GPJA)."""
     rows = [(f"{method_label(method)} optimisation", [log_seconds(g) for g in logs], [log_vertices(g) for g in logs])]
     depth = max((len(g.get("levels") or []) for g in logs), default=0)
     for i in range(depth):
         levels = [g["levels"][i] for g in logs if len(g.get("levels") or []) > i]
-        stage = "warm-up" if levels[0].get("stage") == "warmup" else f"level {levels[0].get('level', i)}"
+        stage = stage_label(levels[0], i)
         rows.append((f"{method_label(method)} {stage}", [lv.get("seconds") for lv in levels],
                      [lv.get("vertices") for lv in levels]))
     return [r for r in rows if any(is_number(s) for s in r[1])]

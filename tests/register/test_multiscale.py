@@ -203,3 +203,28 @@ def test_the_hold_pulls_back_what_the_warm_up_did_not_move_and_frees_what_it_mov
     _, log = optimise(mesh, targets, Switches(), Schedule(lambdas=(10.0,), iterations=(3,), hold_tangential=0.2),
                       **kwargs)
     assert log.levels[0]["hold"] is None
+
+
+def test_flow_stages_run_before_the_first_levels_and_are_logged_and_saved():
+    """``flow_rounds`` with ``flow_levels: 2`` on three levels: flow, level, flow2, level, level; each
+    flow stage is reported to ``on_stage``; with the colour constraint off no flow stage runs."""
+    from tests.register.test_flow import FLOW_TURN_DEG, sphere_scene
+
+    template, texture, targets, _ = sphere_scene(FLOW_TURN_DEG, size=64)
+    schedule = Schedule(lambdas=(10.0, 5.0, 5.0), iterations=(3, 3, 3), refine_factor=1.5, lr_fraction=0.1,
+                        flow_rounds=1, flow_levels=2)
+    saved = []
+    kwargs = dict(texture=texture, mask_texture=torch.ones(4, 4, 1), progress=lambda m: None, progress_every=0)
+    _, log = optimise(template, targets, Switches(), schedule, on_stage=lambda name, mesh: saved.append(name), **kwargs)
+    assert [lv["stage"] for lv in log.levels] == ["flow", "level", "flow2", "level", "level"]
+    assert saved == ["flow", "level1", "flow2", "level2", "level3"]
+    assert log.levels[0]["vertices"] == len(template.V) and len(log.levels[0]["rounds"]) == 1
+    _, log = optimise(template, targets, Switches(color=False), schedule, **kwargs)
+    assert [lv["stage"] for lv in log.levels] == ["level"] * 3
+
+
+def test_flow_settings_are_checked():
+    with pytest.raises(ValueError, match="flow_rounds"):
+        Schedule(flow_rounds=-1)
+    with pytest.raises(ValueError, match="flow_smoothness"):
+        Schedule(flow_smoothness=0.0)

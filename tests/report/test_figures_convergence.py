@@ -21,6 +21,16 @@ def test_loss_curves_spread_rotating_constraints_over_their_levels():
     assert all(np.all(np.diff(c[0]) > 0) for c in curves.values())
 
 
+def test_flow_stages_take_no_iterations_on_the_curves():
+    log = {"levels": [{"stage": "flow", "rounds": [{}], "seconds": 1.0},
+                      {"stage": "level", "iterations": 4, "losses": {"color": [3, 2]}},
+                      {"stage": "flow2", "rounds": [{}], "seconds": 1.0},
+                      {"stage": "level", "iterations": 2, "losses": {"color": [1]}}]}
+    curves, starts = loss_curves(log)
+    assert starts == [0, 4]
+    np.testing.assert_allclose(curves["color"][0], [1.0, 3.0, 5.0])
+
+
 def test_convergence_figure_writes_png_and_pdf(tmp_path):
     """Regression case: a figure from a tiny log, both files written, nothing else."""
     log = {"levels": [{"iterations": 6, "losses": {"color": [0.3, 0.2], "depth": [5, 4], "normal": [0.4, 0.3]}}]}

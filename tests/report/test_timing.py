@@ -38,3 +38,11 @@ def test_timing_table_from_benchmarks_and_registration_logs(run_dir, tmp_path):
     (run_dir / "S02/nicp/2_smile.json").unlink()
     with pytest.raises(InputError, match="registration log of subject S02, method nicp"):
         timing_table(run_dir, bench, run)
+
+
+def test_stage_labels_name_the_warm_up_the_flow_stages_and_the_levels():
+    from gpja.report.timing import stage_label
+
+    entries = [{"stage": "flow"}, {"stage": "level", "level": 0}, {"stage": "flow2"}, {"stage": "warmup"},
+               {"stage": "level", "level": 2}]
+    assert [stage_label(e, i) for i, e in enumerate(entries)] == ["flow", "level 0", "flow2", "warm-up", "level 2"]

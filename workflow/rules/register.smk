@@ -80,7 +80,8 @@ checkpoint registration_order:
 def start_inputs(wildcards):
     """The mesh a registration starts from when it is not the template (``registration.start: tree``): the
     GPJA registration of the expression's parent in the subject's registration tree. Variants that change
-    one constraint start from the same mesh as GPJA; ``gpja-paper`` always starts from the template."""
+    one constraint (or drop the flow stage) start from the same mesh as GPJA; ``gpja-paper`` always starts
+    from the template."""
     if REG.get("start", "template") != "tree" or not registry.method(wildcards.method).follows_start:
         return {}
     with open(checkpoints.registration_order.get(subject=wildcards.subject).output[0]) as fh:

@@ -1,0 +1,273 @@
+"""Optical-flow correspondences (beyond the paper, ``Schedule.flow_rounds``): image matching before the descent.
+
+Why (docs/experiments.md, "Issue 15"): GPJA's colour constraint is a per-pixel L1 descended by a
+first-order optimiser, so its basin is about as wide as the texture's features (a few pixels, ~1 mm
+a pixel at 512^2). The jaw of the mouth-open template is 15-25 mm from a closed mouth's, far
+outside it, and the free-form descent slides what no constraint pins (nose, neck) while it chases
+the lips. Dense image matching has the wide basin the descent lacks: a coarse-to-fine optical flow
+(OpenCV's DIS, Kroeger et al. 2016) between the start mesh rendered with the shared texture and
+each reference photograph says, for every visible pixel, where that surface point went, tens of
+pixels away.
+
+One round:
+
+1. Render the mesh with the shared texture and the capture's lighting in every view (the colour
+   the colour constraint compares), and its depth (visibility).
+2. Flow render -> reference and reference -> render per view, on gamma-encoded grey images.
+3. Each vertex visible in a view (its depth matches the rendered depth, it faces the camera, it is
+   not in the mouth socket) moves to ``p' = p + flow(p)`` in that view. The match is kept when the
+   backward flow returns it (``|flow(p) + back(p')|`` below a pixel tolerance) and the scan covers
+   ``p'``; its 3D target is the scan's point seen at ``p'`` (the cached scan depth, unprojected).
+4. A vertex's targets from several views are combined by their median; views further than
+   ``spread`` mm from it are dropped.
+5. The mesh moves by the smooth displacement ``d`` minimising
+   ``sum_i w_i |x_i + d_i - t_i|^2 + mu |L d|^2`` (``L`` the graph Laplacian normalised by the
+   degree, so ``mu`` does not depend on the resolution), re-weighted twice by the residual
+   (``w_i / (1 + (r_i / spread)^2)``) so that a few bad matches do not pull a neighbourhood.
+   Vertices without a target (socket, back of the head, hidden neck) follow their neighbours; a weak
+   pull towards no motion (``STAY_WEIGHT``) keeps those far from any match in place.
+
+The rounds repeat with the moved mesh (each flow then only corrects what is left). The result is a
+start whose features already sit where the reference's are; the paper's levels then refine it.
+No ground truth is read: only the reference images, the scan's depth and the shared texture.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+
+from gpja.camera import Camera
+from gpja.mesh import TexturedMesh
+from gpja.register.hra import ExpressionTargets
+
+#: gamma applied to linear colours before matching (flow works on perceptual contrast)
+MATCH_GAMMA = 1.0 / 2.2
+#: a vertex is visible in a view when its depth is within this of the rendered depth (mm)
+VISIBLE_DEPTH_MM = 1.0
+#: and when the cosine between its normal and the direction to the camera is at least this
+MIN_FACING = 0.3
+#: residual re-weighting passes of the smooth solve
+REWEIGHT_PASSES = 2
+#: weight of the pull of every vertex towards no motion, relative to a match's (1)
+STAY_WEIGHT = 1e-3
+
+
+@dataclass(frozen=True)
+class FlowSettings:
+    """One flow stage's parameters.
+
+    Attributes:
+        rounds: render -> flow -> move rounds (0 = off).
+        smoothness: ``mu`` of the displacement's smoothness (dimensionless; larger = stiffer).
+        fb_tolerance_px: forward-backward flow disagreement (px) above which a match is dropped.
+        spread_mm: views whose target is further than this from the vertex's median target are
+            dropped, and the residual re-weighting's scale (mm).
+    """
+
+    rounds: int = 3
+    smoothness: float = 30.0
+    fb_tolerance_px: float = 1.0
+    spread_mm: float = 2.0
+
+
+def to_grey_u8(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) linear colours in [0, 1] -> (H, W) uint8 gamma-encoded luminance."""
+    grey = image @ np.array([0.299, 0.587, 0.114])
+    return np.clip(255.0 * np.clip(grey, 0.0, 1.0) ** MATCH_GAMMA + 0.5, 0, 255).astype(np.uint8)
+
+
+def dense_flow(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(H, W, 2) float32 flow (px) taking ``source`` pixels to ``target`` (uint8 (H, W) images).
+
+    OpenCV's DIS flow (coarse-to-fine patch search with variational refinement): it reaches
+    displacements of tens of pixels, which is why it is used rather than a local descent.
+    """
+    import cv2
+
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    return dis.calc(source, target, None)
+
+
+def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``image`` (H, W, C) sampled at pixel positions ``xy`` (n, 2) (centres at integers, clamped)."""
+    h, w = image.shape[:2]
+    x = np.clip(xy[:, 0], 0.0, w - 1.0)
+    y = np.clip(xy[:, 1], 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), w - 2)
+    y0 = np.minimum(np.floor(y).astype(np.int64), h - 2)
+    fx = (x - x0)[:, None]
+    fy = (y - y0)[:, None]
+    return ((1 - fx) * (1 - fy) * image[y0, x0] + fx * (1 - fy) * image[y0, x0 + 1]
+            + (1 - fx) * fy * image[y0 + 1, x0] + fx * fy * image[y0 + 1, x0 + 1])
+
+
+def unproject(camera: Camera, xy: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """World points (n, 3) mm at pixels ``xy`` (n, 2) of an undistorted camera and camera depths (n,) mm."""
+    xn = (xy - camera.K[:2, 2]) @ np.linalg.inv(camera.K[:2, :2]).T
+    Xc = np.concatenate([xn * depth[:, None], depth[:, None]], axis=1)
+    return (Xc - camera.t) @ camera.R
+
+
+def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.ndarray, render_grey: np.ndarray,
+                 render_depth: np.ndarray, reference_grey: np.ndarray, scan_depth: np.ndarray,
+                 scan_coverage: np.ndarray, fb_tolerance_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The matched scan points of the vertices in one view.
+
+    Args:
+        V, normals: (n, 3) float64 vertex positions (mm) and unit normals.
+        use: (n,) bool vertices allowed to match (not in the mouth socket).
+        render_grey, reference_grey: (H, W) uint8 (``to_grey_u8``).
+        render_depth: (H, W) float64 the mesh's camera depth, mm (0 = empty).
+        scan_depth, scan_coverage: (H, W) float64 the scan's depth (mm) and coverage in [0, 1].
+    Returns:
+        targets: (n, 3) float64 scan points, mm (NaN where no match); facing: (n,) the cosine weight.
+    """
+    n = len(V)
+    xy, z = camera.project(V)
+    h, w = render_grey.shape
+    inside = (xy[:, 0] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= h - 1) & (z > 0)
+    pix = np.clip(np.rint(xy).astype(np.int64), 0, [w - 1, h - 1])
+    seen = render_depth[pix[:, 1], pix[:, 0]]
+    to_camera = camera.center[None, :] - V
+    facing = (normals * to_camera).sum(1) / np.linalg.norm(to_camera, axis=1)
+    ok = use & inside & (seen > 0) & (np.abs(seen - z) < VISIBLE_DEPTH_MM) & (facing >= MIN_FACING)
+    targets = np.full((n, 3), np.nan)
+    if not ok.any():
+        return targets, facing
+    forward = dense_flow(render_grey, reference_grey)
+    backward = dense_flow(reference_grey, render_grey)
+    p = xy[ok]
+    f = bilinear(forward, p)
+    q = p + f
+    back = bilinear(backward, q)
+    qi = np.clip(np.rint(q).astype(np.int64), 0, [w - 1, h - 1])
+    good = ((np.linalg.norm(f + back, axis=1) < fb_tolerance_px)
+            & (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
+            & (scan_coverage[qi[:, 1], qi[:, 0]] > 0.999))
+    cov = bilinear(scan_coverage[..., None], q[good])[:, 0]
+    dep = bilinear(scan_depth[..., None], q[good])[:, 0] / np.maximum(cov, 1e-6)
+    idx = np.flatnonzero(ok)[good]
+    targets[idx] = unproject(camera, q[good], dep)
+    return targets, facing
+
+
+def combine_views(per_view: np.ndarray, spread_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-vertex target from its views' targets.
+
+    Args:
+        per_view: (B, n, 3) float64 targets, NaN where a view has none.
+    Returns:
+        target: (n, 3) float64 (NaN where none); count: (n,) int views that agree within ``spread_mm``
+        of the per-vertex median.
+    """
+    seen = np.isfinite(per_view).all(2).any(0)
+    median = np.full(per_view.shape[1:], np.nan)
+    median[seen] = np.nanmedian(per_view[:, seen], axis=0)
+    with np.errstate(invalid="ignore"):
+        close = np.linalg.norm(per_view - median[None], axis=2) <= spread_mm
+    count = close.sum(0)
+    summed = np.where(close[..., None], per_view, 0.0).sum(0)
+    target = np.where(count[:, None] > 0, summed / np.maximum(count, 1)[:, None], np.nan)
+    return target, count
+
+
+def smoothness_matrix(F: np.ndarray, n: int) -> sp.csr_matrix:
+    """(n, n) ``Ln^T Ln`` with ``Ln = I - D^-1 A`` the degree-normalised graph Laplacian."""
+    from gpja.register.laplacian import uniform_laplacian
+
+    L = uniform_laplacian(np.zeros((n, 3)), F)
+    degree = np.asarray(L.diagonal()).clip(1.0)
+    Ln = sp.diags(1.0 / degree) @ L
+    return (Ln.T @ Ln).tocsr()
+
+
+def solve_displacement(V: np.ndarray, F: np.ndarray, target: np.ndarray, weight: np.ndarray, smoothness: float,
+                       spread_mm: float) -> np.ndarray:
+    """The smooth displacement (n, 3) mm that takes weighted vertices towards their targets (module docstring)."""
+    from gpja.baselines.nicp_solver import factorize, solve_with
+
+    n = len(V)
+    has = np.isfinite(target).all(1) & (weight > 0)
+    residual = np.where(has[:, None], target - V, 0.0)
+    # the small pull to no motion keeps vertices far from every match (the back of the head, a refined
+    # mesh's socket) where they are; the smoothness alone would extrapolate the matches' motion linearly
+    S = smoothness * smoothness_matrix(F, n) + sp.identity(n) * STAY_WEIGHT
+    w = np.where(has, weight, 0.0)
+    d = np.zeros_like(V)
+    for _ in range(REWEIGHT_PASSES + 1):
+        factor = factorize(S + sp.diags(w))
+        d = solve_with(factor, w[:, None] * residual)
+        r = np.linalg.norm(d - residual, axis=1)
+        w = np.where(has, weight / (1.0 + (r / spread_mm) ** 2), 0.0)
+    return d
+
+
+def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.Tensor, mask_texture: torch.Tensor,
+                settings: FlowSettings, render: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The flow targets of ``mesh``'s vertices: target (n, 3) mm (NaN = none) and weight (n,)."""
+    from gpja.render import Topology, render_views, vertex_normals
+
+    render = render or render_views
+    V = torch.tensor(mesh.V, dtype=torch.float32)
+    topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
+    with torch.no_grad():
+        out = render(V, topo, targets.cameras, ("color", "depth", "mask"), uv=torch.tensor(mesh.UV, dtype=torch.float32),
+                     texture=texture, mask_texture=mask_texture, sh=targets.sh, antialias_edges=False,
+                     cull_backfaces=True)
+        colour = out.dense("color").double().numpy()
+        depth = out.dense("depth").double().numpy()[..., 0]
+        normals = vertex_normals(torch.from_numpy(mesh.V), torch.from_numpy(mesh.F)).numpy()
+    # the socket: vertices whose texture is masked out (mouth interior) do not match
+    mask = mask_texture.double().numpy()[..., 0]
+    uv_of_vertex = np.zeros((len(mesh.V), 2))
+    uv_of_vertex[mesh.F.ravel()] = mesh.UV[mesh.F_uv.ravel()]
+    tex_h, tex_w = mask.shape
+    texel = np.stack([uv_of_vertex[:, 0] * (tex_w - 1), (1.0 - uv_of_vertex[:, 1]) * (tex_h - 1)], axis=1)
+    use = bilinear(mask[..., None], texel)[:, 0] > 0.5
+    images = targets.images.double().numpy()
+    scan_depth = targets.depth.double().numpy()[..., 0]
+    scan_cov = targets.coverage.double().numpy()[..., 0]
+    per_view = np.full((len(targets.cameras), len(mesh.V), 3), np.nan)
+    facing_all = np.zeros((len(targets.cameras), len(mesh.V)))
+    for b, camera in enumerate(targets.cameras):
+        per_view[b], facing_all[b] = view_matches(
+            camera, mesh.V, normals, use, to_grey_u8(colour[b]), depth[b], to_grey_u8(images[b]), scan_depth[b],
+            scan_cov[b], settings.fb_tolerance_px)
+    target, count = combine_views(per_view, settings.spread_mm)
+    return target, count.astype(np.float64)
+
+
+def align_by_flow(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.Tensor, mask_texture: torch.Tensor,
+                  settings: FlowSettings, render: Callable | None = None,
+                  progress: Callable[[str], None] = print) -> tuple[TexturedMesh, dict]:
+    """Move ``mesh`` by ``settings.rounds`` rounds of flow matching (module docstring).
+
+    Args:
+        mesh: the start (mm) with UVs; its topology is kept.
+        texture: (T, T, 3) shared albedo; mask_texture: (T', T', 1) mouth mask (0 = socket).
+    Returns:
+        the moved mesh and a log entry (per round: matched fraction, median and 95th percentile move, mm).
+    """
+    import time
+
+    start = time.perf_counter()
+    rounds = []
+    base = mesh
+    for k in range(int(settings.rounds)):
+        target, weight = match_round(mesh, targets, texture, mask_texture, settings, render)
+        matched = np.isfinite(target).all(1)
+        # the whole displacement from the start is re-solved each round, so the matches' noise does not add up
+        d = solve_displacement(base.V, base.F, target, weight, settings.smoothness, settings.spread_mm)
+        move = np.linalg.norm(base.V + d - mesh.V, axis=1)
+        mesh = base.with_vertices(base.V + d)
+        entry = {"matched_fraction": round(float(matched.mean()), 4), "median_move_mm": round(float(np.median(move)), 4),
+                 "p95_move_mm": round(float(np.percentile(move, 95)), 4), "max_move_mm": round(float(move.max()), 3)}
+        rounds.append(entry)
+        progress(f"flow round {k + 1}/{settings.rounds}: {100 * entry['matched_fraction']:.0f}% of the vertices "
+                 f"matched, moved median {entry['median_move_mm']:.2f} mm, p95 {entry['p95_move_mm']:.2f} mm")
+    return mesh, {"stage": "flow", "rounds": rounds, "vertices": int(len(mesh.V)),
+                  "seconds": round(time.perf_counter() - start, 3)}
