@@ -34,7 +34,7 @@ No ground truth is read: only the reference images, the scan's depth and the sha
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -93,7 +93,11 @@ def dense_flow(source: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """``image`` (H, W, C) sampled at pixel positions ``xy`` (n, 2) (centres at integers, clamped)."""
+    """``image`` (H, W, C) float64 sampled at pixel positions ``xy`` (n, 2) (centres at integers, clamped).
+
+    Written here rather than ``cv2.remap``: remap quantises the sub-pixel weights to 1/32 px and
+    works in float32, and the flow's sub-pixel positions are what the matches are made of.
+    """
     h, w = image.shape[:2]
     x = np.clip(xy[:, 0], 0.0, w - 1.0)
     y = np.clip(xy[:, 1], 0.0, h - 1.0)
@@ -107,7 +111,7 @@ def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 def unproject(camera: Camera, xy: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """World points (n, 3) mm at pixels ``xy`` (n, 2) of an undistorted camera and camera depths (n,) mm."""
-    xn = (xy - camera.K[:2, 2]) @ np.linalg.inv(camera.K[:2, :2]).T
+    xn = camera.pixels_to_normalized(xy)
     Xc = np.concatenate([xn * depth[:, None], depth[:, None]], axis=1)
     return (Xc - camera.t) @ camera.R
 
@@ -209,7 +213,7 @@ def solve_displacement(V: np.ndarray, F: np.ndarray, target: np.ndarray, weight:
 def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.Tensor, mask_texture: torch.Tensor,
                 settings: FlowSettings, render: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The flow targets of ``mesh``'s vertices: target (n, 3) mm (NaN = none) and weight (n,)."""
-    from gpja.render import Topology, render_views, vertex_normals
+    from gpja.render import Topology, render_views, sample_texture, vertex_normals
 
     render = render or render_views
     V = torch.tensor(mesh.V, dtype=torch.float32)
@@ -221,13 +225,11 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
         colour = out.dense("color").double().numpy()
         depth = out.dense("depth").double().numpy()[..., 0]
         normals = vertex_normals(torch.from_numpy(mesh.V), torch.from_numpy(mesh.F)).numpy()
-    # the socket: vertices whose texture is masked out (mouth interior) do not match
-    mask = mask_texture.double().numpy()[..., 0]
+    # the socket: vertices whose texture is masked out (mouth interior) do not match; a vertex on a UV
+    # seam has several UVs, any one of them tells socket from skin
     uv_of_vertex = np.zeros((len(mesh.V), 2))
     uv_of_vertex[mesh.F.ravel()] = mesh.UV[mesh.F_uv.ravel()]
-    tex_h, tex_w = mask.shape
-    texel = np.stack([uv_of_vertex[:, 0] * (tex_w - 1), (1.0 - uv_of_vertex[:, 1]) * (tex_h - 1)], axis=1)
-    use = bilinear(mask[..., None], texel)[:, 0] > 0.5
+    use = sample_texture(mask_texture.float(), torch.tensor(uv_of_vertex, dtype=torch.float32))[:, 0].numpy() > 0.5
     images = targets.images.double().numpy()
     scan_depth = targets.depth.double().numpy()[..., 0]
     scan_cov = targets.coverage.double().numpy()[..., 0]

@@ -65,6 +65,7 @@ import torch
 
 from gpja.errors import GpjaError
 from gpja.mesh import TexturedMesh
+from gpja.register.flow import FlowSettings
 from gpja.register.hold import TangentialHold
 from gpja.register.hra import ExpressionTargets, Switches, render_constraint
 from gpja.register.largesteps import LargeStepsParametrization
@@ -128,7 +129,7 @@ class Schedule:
     hold_moved_mm: tuple[float, float] = (0.75, 2.5)
     flow_rounds: int = 0
     flow_levels: int = 1
-    flow_smoothness: float = 30.0
+    flow_smoothness: float = FlowSettings.smoothness
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -222,7 +223,9 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     common = dict(targets=targets, texture=texture, mask_texture=mask_texture, render=render,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
     hold = None
-    if schedule.flow_rounds and schedule.flow_levels and switches.color:
+    # the flow stage matches the render's colours: without the colour constraint there is none
+    flow_levels = int(schedule.flow_levels) if schedule.flow_rounds and switches.color else 0
+    if flow_levels:
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
     if schedule.warmup_iterations and switches.color:
         start_mesh = mesh
@@ -246,7 +249,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
             else:
                 mesh, hold = hold.refine(mesh, schedule.refine_factor)
         refine_s = time.perf_counter() - start
-        if schedule.flow_rounds and switches.color and 0 < level < schedule.flow_levels:
+        if 0 < level < flow_levels:
             mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage,
                               f"flow{level + 1}")
             if hold is not None:  # the hold's starting positions are per vertex: the flow moved them
@@ -267,7 +270,7 @@ def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedul
                on_stage: Callable[[str, TexturedMesh], None] | None, name: str) -> TexturedMesh:
     """``schedule.flow_rounds`` rounds of optical-flow matching (``gpja.register.flow``), logged and saved
     as stage ``name``; returns the moved mesh (same topology)."""
-    from gpja.register.flow import FlowSettings, align_by_flow
+    from gpja.register.flow import align_by_flow
 
     settings = FlowSettings(rounds=int(schedule.flow_rounds), smoothness=float(schedule.flow_smoothness))
     mesh, entry = align_by_flow(mesh, targets, texture, mask_texture, settings, render=render, progress=progress)
