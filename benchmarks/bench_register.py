@@ -21,6 +21,11 @@ runs, alternating ``--repeats`` times, the registration from the template (as be
 mesh with its stage meshes saved (as the workflow now runs it), and prints both and the ratio of
 their median times.
 
+The flow stage against the warm-up it replaced (issue 15: a default registration must cost no more
+than before): ``--compare-settings '{"flow_rounds": 0, "warmup_iterations": 200}'`` runs, alternating
+``--repeats`` times, the preset and the preset with those overrides (both from the template, or both
+from ``--start``), and prints both and the ratio of their median times.
+
 Usage:
   python benchmarks/bench_register.py [--preset default|paper] [--subject S01] [--expression 1_neutral]
         [--data data/synthetic] [--results results/synthetic] [--settings JSON]
@@ -70,11 +75,21 @@ def main() -> None:
     parser.add_argument("--results", default="results/synthetic")
     parser.add_argument("--compare-start", default=None,
                         help="a registered .obj of another expression: time the template start against it")
-    parser.add_argument("--repeats", type=int, default=1, help="alternating runs of each start (--compare-start)")
+    parser.add_argument("--compare-settings", default=None,
+                        help="JSON overriding the preset for a second schedule, timed alternating with the first")
+    parser.add_argument("--start", default=None, help="a registered .obj of another expression to start from")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="alternating runs of each (--compare-start, --compare-settings)")
+    parser.add_argument("--threads", type=int, default=None, help="threads (as gpja --threads); default: torch's")
     args = parser.parse_args()
 
     from gpja.data.source import DataSource
     from gpja.register.hra import Switches
+
+    if args.threads:
+        from gpja.cli import limit_threads
+
+        limit_threads(args.threads)
     from gpja.register.multiscale import Schedule
     from gpja.register.pipeline import expression_targets, register
     from gpja.results import read_template, read_template_lighting
@@ -97,13 +112,19 @@ def main() -> None:
     if args.compare_start:
         compare_starts(args, template, mask, targets, schedule, data)
         return
+    if args.start:
+        from gpja.mesh import read_obj
+        from gpja.register.pipeline import start_from
+
+        template = start_from(template, read_obj(args.start, load_texture=False), args.start)
+    if args.compare_settings:
+        other = Schedule.from_config({**settings, **json.loads(args.compare_settings)}, "--compare-settings")
+        compare_schedules(args, template, mask, targets, {"preset": schedule, "compared": other}, data)
+        return
     start = time.perf_counter()
     mesh, log = register(template, mask, targets, schedule, Switches(), progress=lambda m: print(m, file=sys.stderr))
     seconds = time.perf_counter() - start
-    levels = [{"level": lv["level"] + 1 if lv.get("stage") != "warmup" else "warm-up", "vertices": lv["vertices"], "iterations": lv["iterations"],
-               "seconds": lv["seconds"], "setup_seconds": lv["setup_seconds"],
-               "iterations_per_second": round(lv["iterations"] / max(lv["seconds"] - lv["setup_seconds"], 1e-9), 2),
-               "seconds_by_stage": lv["seconds_by_stage"]} for lv in log.levels]
+    levels = [level_entry(lv) for lv in log.levels]
     print(json.dumps({
         "benchmark": "register", "preset": args.preset, "settings": settings, "subject": args.subject,
         "expression": args.expression, "views": len(data.views),
@@ -113,6 +134,42 @@ def main() -> None:
         "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F),
         "psnr_db": round(shared_texture_psnr(mesh, template.texture, targets), 2),
     }, indent=1))
+
+
+def level_entry(lv: dict) -> dict:
+    """One registration log entry in the JSON: a flow stage (seconds, rounds) or a level / the warm-up."""
+    if "iterations" not in lv:  # a flow stage: no descent iterations
+        return {"level": lv["stage"], "vertices": lv.get("vertices"), "seconds": lv["seconds"],
+                "rounds": len(lv.get("rounds") or [])}
+    return {"level": lv["level"] + 1 if lv.get("stage") != "warmup" else "warm-up", "vertices": lv["vertices"],
+            "iterations": lv["iterations"], "seconds": lv["seconds"], "setup_seconds": lv["setup_seconds"],
+            "iterations_per_second": round(lv["iterations"] / max(lv["seconds"] - lv["setup_seconds"], 1e-9), 2),
+            "seconds_by_stage": lv["seconds_by_stage"]}
+
+
+def compare_schedules(args, start_mesh, mask, targets, schedules: dict, data) -> None:
+    """Alternate registrations with each of ``schedules`` (name -> Schedule) from one start; print JSON."""
+    import statistics
+
+    from gpja.register.hra import Switches
+    from gpja.register.pipeline import register
+
+    runs = {name: [] for name in schedules}
+    for _ in range(max(args.repeats, 1)):
+        for name, schedule in schedules.items():
+            t0 = time.perf_counter()
+            mesh, log = register(start_mesh, mask, targets, schedule, Switches(),
+                                 progress=lambda m: print(m, file=sys.stderr))
+            runs[name].append({"seconds": round(time.perf_counter() - t0, 2),
+                               "levels": [{"level": e["level"], "seconds": e["seconds"]}
+                                          for e in map(level_entry, log.levels)],
+                               "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F)})
+    medians = {k: statistics.median(r["seconds"] for r in v) for k, v in runs.items()}
+    print(json.dumps({"benchmark": "register_settings", "subject": args.subject, "expression": args.expression,
+                      "start": args.start or "template", "compared_settings": json.loads(args.compare_settings),
+                      "threads": args.threads, "repeats": args.repeats, "runs": runs, "median_seconds": medians,
+                      "ratio_preset_to_compared": round(medians["preset"] / medians["compared"], 3),
+                      "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()}}, indent=1))
 
 
 def compare_starts(args, template, mask, targets, schedule, data) -> None:
