@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -129,7 +130,7 @@ def main() -> None:
         "benchmark": "register", "preset": args.preset, "settings": settings, "subject": args.subject,
         "expression": args.expression, "views": len(data.views),
         "image_size": [data.views[0].camera.width, data.views[0].camera.height],
-        "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()},
+        "machine": machine(),
         "seconds": round(seconds, 2), "levels": levels,
         "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F),
         "psnr_db": round(shared_texture_psnr(mesh, template.texture, targets), 2),
@@ -147,34 +148,48 @@ def level_entry(lv: dict) -> dict:
             "seconds_by_stage": lv["seconds_by_stage"]}
 
 
-def compare_schedules(args, start_mesh, mask, targets, schedules: dict, data) -> None:
-    """Alternate registrations with each of ``schedules`` (name -> Schedule) from one start; print JSON."""
+def time_alternately(cases: dict, repeats: int, data) -> tuple[dict, dict]:
+    """Run each case (name -> callable returning ``(mesh, log)``) in turn, ``repeats`` times round.
+
+    Returns per-case runs (seconds, flow stage and level times, scan-to-mesh) and median seconds.
+    """
     import statistics
 
-    from gpja.register.hra import Switches
-    from gpja.register.pipeline import register
-
-    runs = {name: [] for name in schedules}
-    for _ in range(max(args.repeats, 1)):
-        for name, schedule in schedules.items():
+    runs = {name: [] for name in cases}
+    for _ in range(max(repeats, 1)):
+        for name, run in cases.items():
             t0 = time.perf_counter()
-            mesh, log = register(start_mesh, mask, targets, schedule, Switches(),
-                                 progress=lambda m: print(m, file=sys.stderr))
+            mesh, log = run()
             runs[name].append({"seconds": round(time.perf_counter() - t0, 2),
                                "levels": [{"level": e["level"], "seconds": e["seconds"]}
                                           for e in map(level_entry, log.levels)],
                                "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F)})
-    medians = {k: statistics.median(r["seconds"] for r in v) for k, v in runs.items()}
+    return runs, {k: statistics.median(r["seconds"] for r in v) for k, v in runs.items()}
+
+
+def machine() -> dict:
+    return {"cpus": os.cpu_count(), "python": platform.python_version()}
+
+
+def compare_schedules(args, start_mesh, mask, targets, schedules: dict, data) -> None:
+    """Alternate registrations with each of ``schedules`` (name -> Schedule) from one start; print JSON."""
+    from gpja.register.hra import Switches
+    from gpja.register.pipeline import register
+
+    def case(schedule):
+        return lambda: register(start_mesh, mask, targets, schedule, Switches(),
+                                progress=lambda m: print(m, file=sys.stderr))
+
+    runs, medians = time_alternately({name: case(s) for name, s in schedules.items()}, args.repeats, data)
     print(json.dumps({"benchmark": "register_settings", "subject": args.subject, "expression": args.expression,
                       "start": args.start or "template", "compared_settings": json.loads(args.compare_settings),
                       "threads": args.threads, "repeats": args.repeats, "runs": runs, "median_seconds": medians,
                       "ratio_preset_to_compared": round(medians["preset"] / medians["compared"], 3),
-                      "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()}}, indent=1))
+                      "machine": machine()}, indent=1))
 
 
 def compare_starts(args, template, mask, targets, schedule, data) -> None:
     """Alternate the registration from the template and from ``--compare-start`` (stages saved); print JSON."""
-    import statistics
     import tempfile
 
     from gpja.mesh import read_obj
@@ -183,22 +198,21 @@ def compare_starts(args, template, mask, targets, schedule, data) -> None:
     from gpja.results import stage_writer
 
     parent = start_from(template, read_obj(args.compare_start, load_texture=False), args.compare_start)
-    runs = {"template": [], "tree": []}
-    for _ in range(max(args.repeats, 1)):
-        for name, mesh0 in (("template", template), ("tree", parent)):
+
+    def case(mesh0, save_stages):
+        def run():
             with tempfile.TemporaryDirectory() as tmp:
-                on_stage = stage_writer(tmp) if name == "tree" else None
-                t0 = time.perf_counter()
-                mesh, _ = register(mesh0, mask, targets, schedule, Switches(), on_stage=on_stage,
-                                   progress=lambda m: print(m, file=sys.stderr))
-                runs[name].append({"seconds": round(time.perf_counter() - t0, 2),
-                                   "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F)})
-    medians = {k: statistics.median(r["seconds"] for r in v) for k, v in runs.items()}
+                return register(mesh0, mask, targets, schedule, Switches(),
+                                on_stage=stage_writer(tmp) if save_stages else None,
+                                progress=lambda m: print(m, file=sys.stderr))
+        return run
+
+    runs, medians = time_alternately({"template": case(template, False), "tree": case(parent, True)}, args.repeats,
+                                     data)
     print(json.dumps({"benchmark": "register_start", "subject": args.subject, "expression": args.expression,
                       "start_from": args.compare_start, "repeats": args.repeats, "runs": runs,
                       "median_seconds": medians, "ratio_tree_to_template": round(medians["tree"] / medians["template"], 3),
-                      "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()}}, indent=1))
-
+                      "machine": machine()}, indent=1))
 
 if __name__ == "__main__":
     main()

@@ -109,7 +109,7 @@ def test_reweighted_solves_match_a_factorisation_of_each_system(monkeypatch):
 
     from gpja.baselines import nicp_solver
     from gpja.baselines.nicp_solver import factorize, solve_with
-    from gpja.register.flow import REWEIGHT_PASSES, STAY_WEIGHT, smoothness_matrix
+    from gpja.register.flow import REWEIGHT_PASSES, smoothness_system
     from tests.render.scenes import sphere
 
     V, F = sphere(subdivisions=3, radius=30.0)
@@ -125,7 +125,7 @@ def test_reweighted_solves_match_a_factorisation_of_each_system(monkeypatch):
     # the same passes, each system factorised anew
     has = np.isfinite(target).all(1)
     residual = np.where(has[:, None], target - V, 0.0)
-    S = 30.0 * smoothness_matrix(F, len(V)) + sp.identity(len(V)) * STAY_WEIGHT
+    S = smoothness_system(F, len(V), 30.0)
     w = np.where(has, weight, 0.0)
     for _ in range(REWEIGHT_PASSES + 1):
         direct = solve_with(factorize(S + sp.diags(w)), w[:, None] * residual)
