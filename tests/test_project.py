@@ -167,7 +167,7 @@ def test_reference_steps_and_their_outputs_are_in_the_ci_dag(tmp_path):
     assert int(counts["texture_quality"]) == int(counts["plot_correspondence_errors"]) == n_subjects
     assert int(counts["oracle_metrics"]) == n_subjects * n_expressions
     tables = re.search(r"gpja --threads 1 tables .*", out.stdout).group(0)
-    assert "--tables geometry photometric ablation correspondence correspondence_regions texture timing" in tables
+    assert "--tables geometry photometric ablation correspondence correspondence_regions position_regions texture timing" in tables
     methods = ["gpja", "nicp", *cfg["registration"]["ablations"]["variants"], "oracle"]
     assert re.search(rf"--methods {' '.join(methods)}\b", tables)
     # the template figure waits for the texture's error image
@@ -251,8 +251,8 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
             assert 0.05 < targets["coverage"].mean() < 0.9  # the head, not empty, not everything
             assert 400 < np.median(targets["depth"][targets["coverage"][..., 0] > 0.99]) < 800  # rig ~600 mm away
     tables = work / f"results/{cfg['dataset']}/tables"
-    for name in ("geometry", "photometric", "ablation", "correspondence", "correspondence_regions", "texture",
-                 "timing"):
+    for name in ("geometry", "photometric", "ablation", "correspondence", "correspondence_regions", "position_regions",
+                 "texture", "timing"):
         for suffix in ("csv", "md", "tex"):
             assert (tables / f"{name}.{suffix}").is_file(), f"{name}.{suffix}"
     assert "Oracle (ground truth)" in (tables / "photometric.md").read_text()

@@ -27,6 +27,18 @@ for "the material point this vertex represents" (on a lip or a nostril, whose
 radius of curvature is a few mm, the projection from farther away can land on
 the other side). The fraction of vertices used is reported with the scores.
 
+The score above looks from the registered mesh's side, so a vertex that left the scan is dropped, not
+counted: a lower lip tucked 10 mm inside a closed mouth, behind a visible lip made of other vertices,
+never shows in it. The **position error** looks from the ground truth's side. For each usable template
+vertex (same cap as above), it takes the vertex's material ``m_tpl(i)``, finds that material on the
+registered expression's scan (the closest point of ``m_tpl(i)`` on the scan's rest-space surface,
+``rest_expr`` on the scan's faces), and measures the distance, mm in expression space, from the
+registered vertex to the point where the expression put that material. Material that is more than
+:data:`PRESENT_MM` from the expression's rest-space scan is not visible in that expression (the inside
+of a closed mouth, an eyeball under a closed lid), so it is not scored. The registered side has no cap,
+so a vertex is never dropped because it ended up far from the scan. The position error is reported as
+``position`` with the same statistics and regions as the main score.
+
 By region: where the ground truth has the rest landmarks (``landmarks_rest``), every used vertex
 is labelled by the facial region of ``m_tpl(i)`` (:mod:`gpja.metrics.regions`: mouth, eyes, nose,
 brows, the rest of the face, ears/scalp/neck), and the scores gain ``regions.{region}.{median_mm,
@@ -52,6 +64,10 @@ from gpja.surface import interpolate, prepare_surface
 TEMPLATE_EXPRESSION = "3_mouth_stretch"
 #: Distance cap of a usable projection onto the scan, mm (module docstring).
 DEFAULT_MAX_DISTANCE_MM = 2.0
+#: A template vertex's material counts as present in an expression when it lies within this of that expression's
+#: scan in rest space, mm (the position error; module docstring): the scans' rest coordinates are exact, so this
+#: only has to absorb the interpolation across a scan triangle.
+PRESENT_MM = 0.5
 #: The ground-truth array of rest coordinates in each expression's ``.npz``.
 REST_COORDS_KEY = "scan_rest_coords"
 #: The ground-truth array of the 68 rest-space landmarks (the same in every expression's ``.npz``).
@@ -120,7 +136,10 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
         ``max_distance_mm``; ``vertex_error_mm`` (n_template,) float64, NaN
         where unused; ``vertex_used`` (n_template,) bool; with landmarks, ``regions``
         (:func:`gpja.metrics.regions.region_statistics`) and ``vertex_region`` (n_template,) int8
-        (index into :data:`gpja.metrics.regions.REGIONS`, ``UNLABELLED`` where unused).
+        (index into :data:`gpja.metrics.regions.REGIONS`, ``UNLABELLED`` where unused); ``position``, the
+        position error (module docstring): ``mean_mm``, ``median_mm``, ``p95_mm``, ``max_mm``, ``n_used``,
+        ``fraction_used``, ``present_mm`` and with landmarks ``regions``; ``vertex_position_error_mm``
+        (n_template,) float64, NaN where the template vertex is unusable or its material is not present.
     Raises:
         InputError: fewer registered vertices than template vertices, NaN
         positions, rest coordinates that do not match their scan, or no vertex
@@ -141,16 +160,49 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
         raise InputError(mesh_source, f"no template vertex lies within {max_distance_mm:g} mm of both scans "
                                       "(away from their boundaries): is the mesh in the scan's frame?")
     error = np.where(used, np.linalg.norm(m_reg - m_tpl, axis=1), np.nan)
-    e = error[used]
-    out = {"mean_mm": float(e.mean()), "median_mm": float(np.median(e)), "p95_mm": float(np.percentile(e, 95)),
-           "max_mm": float(e.max()), "n_used": int(used.sum()), "n_template_vertices": len(V_template),
-           "fraction_used": float(used.mean()), "max_distance_mm": float(max_distance_mm),
-           "vertex_error_mm": error, "vertex_used": used}
+    out = summarise(error, used)
+    out.update(n_template_vertices=len(V_template), max_distance_mm=float(max_distance_mm),
+               vertex_error_mm=error, vertex_used=used)
+    truth, present = material_positions(m_tpl, scan_expr, rest_expr)
+    placed = usable_tpl & present
+    position = np.where(placed, np.linalg.norm(V_reg[: len(V_template)] - truth, axis=1), np.nan)
+    out["position"] = {**summarise(position, placed), "present_mm": PRESENT_MM}
+    out["vertex_position_error_mm"] = position
     if landmarks_rest is not None:
-        regions = np.full(len(V_template), UNLABELLED, dtype=np.int8)
-        regions[used] = label_regions(m_tpl[used], landmarks_rest)
+        labels = np.full(len(V_template), UNLABELLED, dtype=np.int8)
+        labels[usable_tpl] = label_regions(m_tpl[usable_tpl], landmarks_rest)
+        regions = np.where(used, labels, UNLABELLED).astype(np.int8)
         out.update(regions=region_statistics(error, regions), vertex_region=regions)
+        out["position"]["regions"] = region_statistics(position, np.where(placed, labels, UNLABELLED))
     return out
+
+
+def summarise(error: np.ndarray, used: np.ndarray) -> dict:
+    """``mean_mm``, ``median_mm``, ``p95_mm``, ``max_mm`` of ``error[used]`` (None when nothing is used),
+    ``n_used`` and ``fraction_used``."""
+    e = error[used]
+    stats = ((float(e.mean()), float(np.median(e)), float(np.percentile(e, 95)), float(e.max())) if e.size
+             else (None,) * 4)
+    return {**dict(zip(("mean_mm", "median_mm", "p95_mm", "max_mm"), stats)), "n_used": int(used.sum()),
+            "fraction_used": float(used.mean())}
+
+
+def material_positions(material: np.ndarray, scan: tuple[np.ndarray, np.ndarray], rest: np.ndarray,
+                       present_mm: float = PRESENT_MM) -> tuple[np.ndarray, np.ndarray]:
+    """Where an expression's scan puts rest-space material points: the inverse of :func:`material_coordinates`.
+
+    Args:
+        material: (q, 3) float64 rest-space points, mm.
+        scan: (V (n, 3) float64 mm, F (m, 3) int64) of the expression's scan.
+        rest: (n, 3) float64 rest coordinate of every scan vertex, mm.
+        present_mm: material farther than this from the scan's rest-space surface is not present (hidden).
+    Returns:
+        positions: (q, 3) float64 expression-space points, mm; present: (q,) bool, the material lies on the
+        scan in rest space (within ``present_mm``, not at its boundary).
+    """
+    rest_surface = prepare_surface(rest, scan[1])
+    cp = rest_surface.closest(material)
+    return interpolate(rest_surface, cp, scan[0]), (cp.distance <= present_mm) & ~cp.on_boundary
 
 
 def ground_truth_path(ground_truth_root: str | Path, subject: str, expression: str) -> Path:
@@ -186,8 +238,9 @@ def correspondence_error_files(mesh_path: str | Path, template_path: str | Path,
         template_path: the subject's template OBJ (fitted to ``template_expression``).
         scans_root: ``{scans_root}/{subject}/{expression}.ply`` (synthetic: already mm).
         ground_truth_root: ``{ground_truth_root}/{subject}/{expression}.npz``.
-        errors_path: where to write ``vertex_error_mm`` and ``vertex_used`` (``.npz``; with the
-            template expression's ``landmarks_rest`` also ``vertex_region`` and ``region_names``), or None.
+        errors_path: where to write ``vertex_error_mm``, ``vertex_used`` and ``vertex_position_error_mm``
+            (``.npz``; with the template expression's ``landmarks_rest`` also ``vertex_region`` and
+            ``region_names``), or None.
         max_distance_mm: projection cap (module docstring).
     Returns:
         the scores of :func:`correspondence_error` without its arrays (``regions`` when the
@@ -213,7 +266,8 @@ def correspondence_error_files(mesh_path: str | Path, template_path: str | Path,
     if errors_path is not None:
         labels = {} if landmarks is None else {"vertex_region": result["vertex_region"],
                                                "region_names": np.array(REGIONS)}
-        write_npz(errors_path, vertex_error_mm=result["vertex_error_mm"], vertex_used=result["vertex_used"], **labels)
+        write_npz(errors_path, vertex_error_mm=result["vertex_error_mm"], vertex_used=result["vertex_used"],
+                  vertex_position_error_mm=result["vertex_position_error_mm"], **labels)
     out = {"mesh": str(mesh_path), "template": str(template_path), "subject": str(subject),
            "expression": expression, "template_expression": template_expression}
     out.update({k: v for k, v in result.items() if not isinstance(v, np.ndarray)})

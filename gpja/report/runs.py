@@ -23,6 +23,8 @@ GEOMETRY_REQUIRED = ("chamfer_l1_mm", "mesh_to_scan_mm", "scan_to_mesh_mm", "nor
 PHOTOMETRIC_KEYS = ("psnr", "ssim", "lpips")
 CORRESPONDENCE_KEYS = ("mean_mm", "median_mm", "p95_mm")
 CORRESPONDENCE_NAMES = tuple(f"correspondence_{k}" for k in CORRESPONDENCE_KEYS)
+#: The position error's scores (``correspondence.position``, :mod:`gpja.metrics.correspondence`): the same keys.
+POSITION_NAMES = tuple(f"position_{k}" for k in CORRESPONDENCE_KEYS)
 #: The per-region correspondence scores the tables read (``correspondence.regions.{region}.{key}``).
 REGION_KEYS = ("median_mm", "mean_mm")
 
@@ -94,8 +96,8 @@ def flat_metrics(record: dict, regions: bool = False) -> dict[str, float]:
     ``fscore@<t>`` (t in mm); with photometry ``psnr`` (dB), ``ssim``, ``lpips``; with synthetic ground
     truth ``correspondence_mean_mm``, ``correspondence_median_mm``, ``correspondence_p95_mm`` (mm) and per
     facial region ``correspondence_{region}_median_mm``, ``correspondence_{region}_mean_mm`` (mm; regions of
-    :data:`gpja.metrics.regions.REGIONS` with a scored vertex). A reference's record (the oracle) has no
-    geometry names.
+    :data:`gpja.metrics.regions.REGIONS` with a scored vertex); the position error (``correspondence.position``)
+    likewise as ``position_*``. A reference's record (the oracle) has no geometry names.
     """
     values = {}
     geometry = record.get("geometry")
@@ -104,21 +106,30 @@ def flat_metrics(record: dict, regions: bool = False) -> dict[str, float]:
         values.update({fscore_name(t): float(v) for t, v in geometry["fscore"].items()})
     if record.get("photometric"):
         values.update({key: float(record["photometric"][key]) for key in PHOTOMETRIC_KEYS})
-    if record.get("correspondence"):
-        values.update({f"correspondence_{k}": float(record["correspondence"][k]) for k in CORRESPONDENCE_KEYS})
-        per_region = (record["correspondence"].get("regions") or {}) if regions else {}
-        for region, stats in per_region.items():
-            values.update({region_name(region, k): float(stats[k]) for k in REGION_KEYS if is_number(stats.get(k))})
+    correspondence = record.get("correspondence")
+    if correspondence:
+        values.update({f"correspondence_{k}": float(correspondence[k]) for k in CORRESPONDENCE_KEYS})
+        # the position error: metrics JSONs written before it have none
+        for score, scores in (("correspondence", correspondence), ("position", correspondence.get("position"))):
+            if score == "position" and scores:
+                values.update({f"position_{k}": float(scores[k]) for k in CORRESPONDENCE_KEYS
+                               if is_number(scores.get(k))})
+            per_region = ((scores or {}).get("regions") or {}) if regions else {}
+            for region, stats in per_region.items():
+                values.update({region_name(region, k, score): float(stats[k])
+                               for k in REGION_KEYS if is_number(stats.get(k))})
     return values
 
 
-def region_name(region: str, key: str) -> str:
-    """Flat name of a per-region correspondence score: ``correspondence_mouth_median_mm``."""
-    return f"correspondence_{region}_{key}"
+def region_name(region: str, key: str, score: str = "correspondence") -> str:
+    """Flat name of a per-region score: ``correspondence_mouth_median_mm``, ``position_mouth_median_mm``."""
+    return f"{score}_{region}_{key}"
 
 
 #: Every flat per-region name, region by region (:data:`gpja.metrics.regions.REGIONS` order).
 REGION_NAMES = tuple(region_name(r, k) for r in REGIONS for k in REGION_KEYS)
+#: The same for the position error.
+POSITION_REGION_NAMES = tuple(region_name(r, k, "position") for r in REGIONS for k in REGION_KEYS)
 
 
 @dataclass

@@ -22,8 +22,9 @@ Tables (file stem: content):
   "point of GT to mesh", distance in mm), C.D. (mm), PSNR, SSIM, LPIPS.
 - ``correspondence`` (synthetic data only): mean/median/p95 of the
   correspondence error (mm) per subject and method, means over expressions.
-- ``correspondence_regions`` and ``texture`` (synthetic data only): the correspondence error by facial
-  region and the texture's quality against the ground-truth albedo (``gpja.report.tables_truth``).
+- ``correspondence_regions``, ``position_regions`` and ``texture`` (synthetic data only): the correspondence
+  error by facial region, the position error (the ground truth's side of it) overall and by region, and the
+  texture's quality against the ground-truth albedo (``gpja.report.tables_truth``).
 - ``timing``: per workflow step the median and max wall-clock seconds and the
   max RSS (MB) of its jobs (benchmark TSVs), and the registration logs' own
   optimisation seconds, per level for GPJA.
@@ -55,6 +56,7 @@ from gpja.report.runs import (
     AVERAGE,
     CORRESPONDENCE_NAMES,
     PHOTOMETRIC_KEYS,
+    POSITION_NAMES,
     REGION_NAMES,
     Run,
     count_values,
@@ -77,12 +79,13 @@ from gpja.report.table_model import (
     plural,
     subject_label,
 )
-from gpja.report.tables_truth import correspondence_regions_table, texture_table
+from gpja.report.tables_truth import correspondence_regions_table, position_regions_table, texture_table
 from gpja.report.timing import timing_table
 from gpja.results import Layout
 
 #: Every table ``gpja tables`` can write (file stems).
-TABLE_NAMES = ("geometry", "photometric", "ablation", "correspondence", "correspondence_regions", "texture", "timing")
+TABLE_NAMES = ("geometry", "photometric", "ablation", "correspondence", "correspondence_regions", "position_regions",
+               "texture", "timing")
 
 
 def is_reference(name: str) -> bool:
@@ -277,6 +280,8 @@ def default_tables(run: Run, ablation_run: Run | None = None, results: str | Pat
         names.append("correspondence")
     if any(n in v for v in run.values.values() for n in REGION_NAMES):
         names.append("correspondence_regions")
+    if any(POSITION_NAMES[0] in v for v in run.values.values()):
+        names.append("position_regions")
     if results is not None and all(Layout(results).template_file(s, QUALITY_FILE).is_file() for s in run.subjects):
         names.append("texture")
     return names + ["timing"]
@@ -314,6 +319,7 @@ def build_tables(results: str | Path, benchmarks: str | Path, subjects, methods,
                 "ablation": lambda: ablation_table(ablation_run, published),
                 "correspondence": lambda: correspondence_table(run),
                 "correspondence_regions": lambda: correspondence_regions_table(run),
+                "position_regions": lambda: position_regions_table(run),
                 "texture": lambda: texture_table(results, run.subjects),
                 "timing": lambda: timing_table(results, benchmarks, run, extra)}
     return [builders[name]() for name in (names or default_tables(run, ablation_run, results))]

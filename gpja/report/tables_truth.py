@@ -4,6 +4,9 @@ quality against the generator's albedo.
 - ``correspondence_regions``: per subject (and the ``Average`` of the subject means) and method, the
   median and mean correspondence error (mm) of each facial region (:mod:`gpja.metrics.regions`), means
   over the expressions of the per-expression values in ``correspondence.regions`` of the metrics JSONs.
+- ``position_regions``: the same from the ground truth's side (``correspondence.position``: the distance from
+  each registered vertex to where the expression put its material, which also counts the vertices that left
+  the scan), with the overall median, mean and 95th percentile first.
 - ``texture``: per subject, PSNR (dB) and SSIM of the template's texture against the ground-truth albedo
   over the observed and the unobserved texels, the fitted per-channel gain and the texel counts
   (``template/texture_quality.json``, :mod:`gpja.metrics.texture_quality`).
@@ -18,6 +21,9 @@ from gpja.metrics.regions import RADII_MM, REGION_LABELS, REGIONS
 from gpja.metrics.texture_quality import QUALITY_FILE
 from gpja.report.runs import (
     AVERAGE,
+    CORRESPONDENCE_KEYS,
+    POSITION_NAMES,
+    POSITION_REGION_NAMES,
     REGION_KEYS,
     REGION_NAMES,
     Run,
@@ -41,14 +47,8 @@ def correspondence_regions_table(run: Run) -> Table:
         first = next(iter(run.paths.values()))
         raise InputError(first, "no per-region correspondence scores in any metrics JSON (they need the synthetic "
                                 "ground truth's landmarks_rest)")
-    stats = subject_stats(run, run.methods, names)
-    lines = run.subjects + [AVERAGE]
-    rows = [[subject_label(s), method_label(m)] + [metric_cell(stats[(s, m)][region_name(r, k)], REGION_METRIC[k])
-                                                   for r in REGIONS for k in REGION_KEYS]
-            for s in lines for m in run.methods]
-    block = Block(headers=["Subject", "Method"] + [header(REGION_METRIC[k]) for _ in REGIONS for k in REGION_KEYS],
-                  rows=rows, label_columns=2, groups=[(REGION_LABELS[r], len(REGION_KEYS)) for r in REGIONS],
-                  rules={i * len(run.methods) for i in range(1, len(lines))})
+    columns = [(region_name(r, k), REGION_METRIC[k]) for r in REGIONS for k in REGION_KEYS]
+    stats, lines, block = score_block(run, columns, [(REGION_LABELS[r], len(REGION_KEYS)) for r in REGIONS])
     csv_header = ["subject", "method", "region", "expressions", *REGION_KEYS]
     csv_rows = [[s, m, r, count_values(run, run.subjects if s == AVERAGE else [s], m, names_of(r)[0]),
                  *[stats[(s, m)][n] for n in names_of(r)]] for s in lines for m in run.methods for r in REGIONS]
@@ -61,6 +61,44 @@ def correspondence_regions_table(run: Run) -> Table:
               "the region.")]
     caption = "Correspondence error by facial region against the synthetic ground truth (mm): median and mean."
     return Table("correspondence_regions", caption, [block], csv_header, csv_rows, notes)
+
+
+def position_regions_table(run: Run) -> Table:
+    """The position error (mm): overall median, mean and 95th percentile, then median and mean per facial region,
+    per subject and method (means over expressions)."""
+    names = list(POSITION_NAMES) + list(POSITION_REGION_NAMES)
+    if not any(n in v for v in run.values.values() for n in names):
+        first = next(iter(run.paths.values()))
+        raise InputError(first, "no position error in any metrics JSON (metrics written before it: run `gpja "
+                                "metrics` again)")
+    columns = [(n, f"correspondence_{k}") for n, k in zip(POSITION_NAMES, CORRESPONDENCE_KEYS)]
+    columns += [(region_name(r, k, "position"), REGION_METRIC[k]) for r in REGIONS for k in REGION_KEYS]
+    groups = [("all", len(POSITION_NAMES))] + [(REGION_LABELS[r], len(REGION_KEYS)) for r in REGIONS]
+    stats, lines, block = score_block(run, columns, groups)
+    csv_header = ["subject", "method", "expressions", *names]
+    csv_rows = [[s, m, count_values(run, run.subjects if s == AVERAGE else [s], m, POSITION_NAMES[0]),
+                 *[stats[(s, m)][n] for n in names]] for s in lines for m in run.methods]
+    notes = [("Position error (mm): the distance from each registered template vertex to the point where the "
+              "expression's scan carries the vertex's material (gpja/metrics/correspondence.py), means over the "
+              "expressions. Unlike the correspondence error it keeps vertices that left the scan (a lip tucked "
+              "inside the mouth); material hidden in the expression (inside a closed mouth, under a closed lid) "
+              f"is not scored. Regions as in the correspondence table. {DASH}: no scored vertex.")]
+    caption = "Position error against the synthetic ground truth, overall and by facial region (mm)."
+    return Table("position_regions", caption, [block], csv_header, csv_rows, notes)
+
+
+def score_block(run: Run, columns: list[tuple[str, str]], groups: list[tuple[str, int]]) -> tuple[dict, list, Block]:
+    """Per-subject (and ``Average``) x method means of the flat scores ``columns`` ((name, kind): ``kind`` the
+    metric whose digits, header and better end the cell takes) as one block with column ``groups``.
+
+    Returns the statistics (:func:`gpja.report.runs.subject_stats`), the row subjects and the block."""
+    stats = subject_stats(run, run.methods, [n for n, _ in columns])
+    lines = run.subjects + [AVERAGE]
+    rows = [[subject_label(s), method_label(m)] + [metric_cell(stats[(s, m)][n], kind) for n, kind in columns]
+            for s in lines for m in run.methods]
+    block = Block(headers=["Subject", "Method"] + [header(kind) for _, kind in columns], rows=rows, label_columns=2,
+                  groups=groups, rules={i * len(run.methods) for i in range(1, len(lines))})
+    return stats, lines, block
 
 
 def names_of(region: str) -> list[str]:

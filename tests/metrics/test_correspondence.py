@@ -7,7 +7,8 @@ import trimesh
 from gpja.errors import InputError
 from gpja.io import read_npz, write_npz
 from gpja.mesh import TexturedMesh, read_ply, write_obj, write_ply
-from gpja.metrics.correspondence import correspondence_error, correspondence_error_files
+from gpja.metrics.correspondence import (correspondence_error, correspondence_error_files, material_coordinates,
+                                         material_positions)
 from tests.tolerances import CORRESPONDENCE_EXACT_MM
 
 SUBJECT = "S01"
@@ -101,6 +102,54 @@ def test_vertices_off_the_scan_are_excluded():
         correspondence_error(V_reg[2:], P[2:], *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION])
 
 
+# --- position error (the ground truth's side) ---------------------------------------------
+
+def test_material_positions_inverts_material_coordinates():
+    V, F = hemisphere()
+    scans = scans_of(V, F)
+    P = points_on(V, F, np.flatnonzero(V[F].mean(axis=1)[:, 2] > 20.0))
+    (scan, rest) = scans[EXPRESSION]
+    X = deform(P, EXPRESSION)                                        # on the expression's scan
+    material, usable = material_coordinates(X, scan, rest, 2.0)
+    assert usable.all()
+    where, present = material_positions(material, scan, rest)
+    assert present.all()
+    np.testing.assert_allclose(where, X, atol=CORRESPONDENCE_EXACT_MM)
+    np.testing.assert_allclose(material, P, atol=CORRESPONDENCE_EXACT_MM)
+
+
+def test_position_error_counts_vertices_that_left_the_scan():
+    V, F = grid()
+    scans = {e: ((V, F), V) for e in AFFINE}                         # every expression = rest: the flat patch
+    P = np.array([[0.0, 0.0, 0.0], [10.0, 3.0, 0.0], [-20.0, 5.0, 0.0]])
+    # vertex 0 exact, vertex 1 slid 0.4 mm along the patch, vertex 2 sunk 6 mm below it (and 1 mm sideways)
+    V_reg = P + [[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [1.0, 0.0, -6.0]]
+    out = correspondence_error(V_reg, P, *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION])
+    # the correspondence error drops the sunk vertex (past the 2 mm cap); the position error measures it
+    np.testing.assert_array_equal(out["vertex_used"], [True, True, False])
+    np.testing.assert_allclose(out["vertex_position_error_mm"], [0.0, 0.4, np.hypot(1.0, 6.0)],
+                               atol=CORRESPONDENCE_EXACT_MM)
+    position = out["position"]
+    assert position["n_used"] == 3 and position["fraction_used"] == 1.0
+    assert position["median_mm"] == pytest.approx(0.4, abs=CORRESPONDENCE_EXACT_MM)
+    assert position["max_mm"] == pytest.approx(np.hypot(1.0, 6.0), abs=CORRESPONDENCE_EXACT_MM)
+    assert out["max_mm"] == pytest.approx(0.4, abs=CORRESPONDENCE_EXACT_MM)
+
+
+def test_position_error_skips_material_hidden_in_the_expression():
+    V, F = grid()
+    # the expression's scan lacks the strip x in (-20, 20): that material is hidden there (a closed mouth's inside)
+    centre = V[F].mean(axis=1)
+    visible = F[np.abs(centre[:, 0]) > 20.0]
+    scans = {TEMPLATE_EXPRESSION: ((V, F), V), EXPRESSION: ((V + [0.0, 0.0, 2.0], visible), V)}
+    P = np.array([[-50.0, 0.0, 0.0], [0.0, 0.0, 0.0], [50.0, 10.0, 0.0]])
+    V_reg = P + [0.0, 0.0, 2.0] + [[0.3, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.3, 0.0]]
+    out = correspondence_error(V_reg, P, *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION])
+    e = out["vertex_position_error_mm"]
+    assert np.isnan(e[1]) and out["position"]["n_used"] == 2
+    np.testing.assert_allclose(e[[0, 2]], 0.3, atol=CORRESPONDENCE_EXACT_MM)
+
+
 # --- files --------------------------------------------------------------------------------
 
 def write_subject(root, V, F, P):
@@ -170,6 +219,11 @@ def test_files_break_the_error_down_by_facial_region(tmp_path):
         if mine.size:
             assert regions[name]["median_mm"] == pytest.approx(np.median(mine))
             assert regions[name]["mean_mm"] == pytest.approx(mine.mean())
+    # the position error has its own breakdown, by the same labels (here every vertex's material is present)
+    position = out["position"]["regions"]
+    p = arrays["vertex_position_error_mm"]
+    assert sum(r["count"] for r in position.values()) == out["position"]["n_used"] == np.isfinite(p).sum()
+    assert position["mouth"]["count"] >= regions["mouth"]["count"]
     # without landmarks_rest there is no breakdown
     write_npz(gt, scan_rest_coords=V)
     assert "regions" not in run_files(tmp_path, template, registered, errors_path=errors)

@@ -12,7 +12,7 @@ from gpja.report import tables as T
 from gpja.report.formats import to_csv, to_markdown
 from gpja.report.regression import check_regression, write_reference
 from gpja.report.runs import load_run
-from gpja.report.tables_truth import correspondence_regions_table, texture_table
+from gpja.report.tables_truth import correspondence_regions_table, position_regions_table, texture_table
 from gpja.results import Layout
 from tests.report import E1, E2, md_row, read_csv_rows, write_metrics
 
@@ -25,6 +25,41 @@ def add_regions(results, subject, method, expression, median: float):
         r: ({"median_mm": median + k, "mean_mm": median + k + 0.5, "p95_mm": 9.0, "count": 10} if r != "brows"
             else {"median_mm": None, "mean_mm": None, "p95_mm": None, "count": 0}) for k, r in enumerate(REGIONS)}
     path.write_text(json.dumps(record))
+
+
+def add_position(results, subject, method, expression, median: float):
+    """Add the position error (overall: median, median + 1, median + 5; region k: median + k) to a metrics JSON."""
+    path = Layout(results).metrics(subject, method, expression)
+    record = json.loads(path.read_text())
+    record["correspondence"]["position"] = {
+        "median_mm": median, "mean_mm": median + 1.0, "p95_mm": median + 5.0, "max_mm": 20.0, "n_used": 10,
+        "fraction_used": 1.0, "present_mm": 0.5,
+        "regions": {r: {"median_mm": median + k, "mean_mm": median + k, "p95_mm": 9.0, "count": 10}
+                    for k, r in enumerate(REGIONS)}}
+    path.write_text(json.dumps(record))
+
+
+def test_position_regions_table_means_per_subject_and_method(run_dir):
+    for s in ("S01", "S02"):
+        for e, base in ((E1, 1.0), (E2, 3.0)):
+            add_position(run_dir, s, "gpja", e, base if s == "S01" else base + 2)
+            add_position(run_dir, s, "nicp", e, 0.5)
+    run = load_run(run_dir, ["S01", "S02"], ["gpja", "nicp"], [E1, E2])
+    table = position_regions_table(run)
+    rows = {(r["subject"], r["method"]): r for r in read_csv_rows(to_csv(table))}
+    assert float(rows[("S01", "gpja")]["position_median_mm"]) == pytest.approx(2.0)  # (1 + 3) / 2
+    assert float(rows[("S01", "gpja")]["position_p95_mm"]) == pytest.approx(7.0)
+    assert float(rows[("S02", "gpja")]["position_mouth_median_mm"]) == pytest.approx(4.0)
+    assert float(rows[("Average", "gpja")]["position_eyes_mean_mm"]) == pytest.approx(4.0)  # (3 + 5) / 2
+    md = to_markdown(table)
+    assert md_row(md, "Subject S01")[:5] == ["GPJA", "3.000", "2.000", "7.000", "2.000"]  # mean, median, p95, mouth
+    assert "all P95 (mm) ↓" in md and "mouth/lips Median (mm) ↓" in md
+    assert "position_regions" in T.default_tables(run)
+    # metrics written before the position error: not offered, and asking for it says why
+    bare = load_run(run_dir, ["S01"], ["nphm"], [E1])
+    assert "position_regions" not in T.default_tables(bare)
+    with pytest.raises(InputError, match="no position error"):
+        position_regions_table(bare)
 
 
 def write_oracle(results, subject, expression, psnr: float):

@@ -1,11 +1,11 @@
 # Stage 5, report: the paper's tables (geometry, photometry, ablations, correspondence, timing) from every metrics JSON,
 # and the HTML report of every table and figure.
 
-# tables this configuration can fill: ablations only with ablation variants; correspondence (overall and by region)
-# and the texture's quality only with synthetic ground truth (GROUND_TRUTH, workflow/rules/reference.smk)
+# tables this configuration can fill: ablations only with ablation variants; correspondence (overall and by region),
+# the position error and the texture's quality only with synthetic ground truth (GROUND_TRUTH, workflow/rules/reference.smk)
 TABLES = ["geometry", "photometric"]
 TABLES += ["ablation"] if ABLATION_VARIANTS else []
-TABLES += ["correspondence", "correspondence_regions", "texture"] if GROUND_TRUTH else []
+TABLES += ["correspondence", "correspondence_regions", "position_regions", "texture"] if GROUND_TRUTH else []
 TABLES += ["timing"]
 TABLES_DIR = str(LAYOUT.tables_dir)
 # the methods the tables read: every method, then the references (the oracle's row of Table 2)
