@@ -163,4 +163,10 @@ def summary_line(result: dict) -> str:
         mouth = ((c.get("regions") or {}).get("mouth") or {}).get("median_mm")
         if mouth is not None:
             parts.append(f"corr. mouth median {mouth:.3f} mm")
+        position = c.get("position") or {}
+        if position.get("mean_mm") is not None:
+            parts.append(f"position mean {position['mean_mm']:.3f} mm")
+        mouth = (((position.get("regions") or {}).get("mouth")) or {}).get("median_mm")
+        if mouth is not None:
+            parts.append(f"position mouth median {mouth:.3f} mm")
     return ", ".join(parts)

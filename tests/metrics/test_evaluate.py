@@ -24,6 +24,9 @@ def test_summary_line_names_every_headline_score():
                  "LPIPS 0.2000", "corr. mean 1.500 mm"):
         assert text in line
     assert "PSNR" not in summary_line({**result, "photometric": None, "correspondence": None})
+    assert "position" not in line  # metrics JSONs before the position error
+    result["correspondence"]["position"] = {"mean_mm": 0.75, "regions": {"mouth": {"median_mm": 2.25}}}
+    assert "position mean 0.750 mm, position mouth median 2.250 mm" in summary_line(result)
 
 
 def test_a_metric_family_is_one_function_plus_one_registry_entry(monkeypatch, tmp_path):
