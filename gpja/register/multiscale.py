@@ -114,6 +114,10 @@ class Schedule:
             (0 = none, the paper; beyond the paper). Only runs when the colour constraint is on.
         flow_levels: how many levels, from the first, start with those rounds.
         flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
+        average_iterations: a level ends with the mean of the vertex positions after its last this many
+            steps instead of the last one (0 = the last, the paper; beyond the paper). Uniform Adam keeps
+            every vertex moving by about a step to the end of a level, so the last iterate lies a random
+            fraction of a step from where the iterates settle; their mean does not.
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -130,6 +134,7 @@ class Schedule:
     flow_rounds: int = 0
     flow_levels: int = 1
     flow_smoothness: float = FlowSettings.smoothness
+    average_iterations: int = 0
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -159,6 +164,8 @@ class Schedule:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay}")
         if int(self.flow_rounds) < 0 or int(self.flow_levels) < 0:
             raise ValueError(f"flow_rounds and flow_levels must be >= 0, got {self.flow_rounds}, {self.flow_levels}")
+        if int(self.average_iterations) < 0:
+            raise ValueError(f"average_iterations must be >= 0, got {self.average_iterations}")
         if not float(self.flow_smoothness) > 0.0:
             raise ValueError(f"flow_smoothness must be > 0, got {self.flow_smoothness}")
         if not 0.0 <= float(self.hold_tangential) < 1.0:
@@ -318,6 +325,10 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
     # loss forward, and the render's backward pass
     timings = {"solve": 0.0, "render": 0.0, "backward": 0.0}
     setup_s = time.perf_counter() - start
+    # the mean of the positions after the last `averaged` steps: the renders of the iterations after the first
+    # of them (each renders the previous step's result), plus the result of the last step
+    averaged = min(int(schedule.average_iterations), n_iter)
+    position_sum = None
     for it in range(n_iter):
         constraint = rotation[it % len(rotation)]
         opt = optimizers[constraint]
@@ -330,6 +341,8 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
             param.shift(dx)
             x = x + dx  # what vertices() now returns, without a second solve
         t1 = time.perf_counter()
+        if averaged > 1 and it > n_iter - averaged:
+            position_sum = x.detach().double() + (0.0 if position_sum is None else position_sum)
         loss, _ = render_constraint(constraint, x, topo, targets, switches, uv, texture, mask_texture,
                                     render=render, cull_backfaces=cull_backfaces, color_pool=pool)
         value = loss.detach().item()
@@ -351,8 +364,11 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
             recent = ", ".join(f"{c} {np.mean(v[-progress_every // len(rotation):]):.4g}" for c, v in losses.items() if v)
             progress(f"{name} iter {it + 1}/{n_iter}: {recent} ({rate:.1f} it/s)")
     with torch.no_grad():
-        mesh = mesh.with_vertices(param.vertices().double().numpy())
+        last = param.vertices().double()
+        final = last if position_sum is None else (position_sum + last) / averaged
+        mesh = mesh.with_vertices(final.numpy())
     return mesh, {"lambda": lam, "iterations": n_iter, "learning_rate_mm": lr, "color_pool": pool,
+                  "averaged_iterations": max(averaged, 1),
                   "vertices": int(len(mesh.V)), "faces": int(len(mesh.F)),
                   "seconds": round(time.perf_counter() - start, 3), "setup_seconds": round(setup_s, 3),
                   "seconds_by_stage": {k: round(v, 3) for k, v in timings.items()}, "losses": losses,

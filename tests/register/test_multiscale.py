@@ -54,6 +54,26 @@ def test_nan_names_level_and_iteration():
                  texture=torch.ones(4, 4, 3), mask_texture=torch.ones(4, 4, 1), progress_every=0)
 
 
+def test_a_level_can_end_with_the_mean_of_its_last_iterates():
+    # with a constant step the first m iterations of a level do not depend on how many follow, so the run
+    # stopped after m steps is the iterate after step m: the average of the last 3 of 8 is the mean of the
+    # runs of 6, 7 and 8 iterations
+    _, _, targets = ellipsoid_targets(size=32)
+    kw = dict(texture=torch.ones(4, 4, 3), mask_texture=torch.ones(4, 4, 1), progress_every=0)
+
+    def run(n, average):
+        schedule = Schedule(lambdas=(20.0,), iterations=(n,), lr_fraction=0.1, average_iterations=average)
+        return optimise(start_mesh(), targets, Switches(color=False), schedule, **kw)
+
+    iterates = [run(n, 0)[0].V for n in (6, 7, 8)]
+    averaged, log = run(8, 3)
+    np.testing.assert_allclose(averaged.V, np.mean(iterates, axis=0), atol=1e-5)
+    assert log.levels[0]["averaged_iterations"] == 3 and np.abs(averaged.V - iterates[-1]).max() > 1e-3
+    np.testing.assert_array_equal(run(8, 1)[0].V, iterates[-1])  # averaging one iterate is the last one
+    with pytest.raises(ValueError, match="average_iterations"):
+        Schedule(lambdas=(10.0,), iterations=(5,), average_iterations=-1)
+
+
 def test_learning_rate_decays_geometrically_within_a_level():
     constant = Schedule(lambdas=(10.0,), iterations=(5,))
     assert [constant.learning_rate(2.0, i, 5) for i in range(5)] == [2.0] * 5  # the paper: constant
