@@ -109,13 +109,10 @@ def flat_metrics(record: dict, regions: bool = False) -> dict[str, float]:
     correspondence = record.get("correspondence")
     if correspondence:
         values.update({f"correspondence_{k}": float(correspondence[k]) for k in CORRESPONDENCE_KEYS})
-        # the position error: metrics JSONs written before it have none
-        for score, scores in (("correspondence", correspondence), ("position", correspondence.get("position"))):
-            if score == "position" and scores:
-                values.update({f"position_{k}": float(scores[k]) for k in CORRESPONDENCE_KEYS
-                               if is_number(scores.get(k))})
-            per_region = ((scores or {}).get("regions") or {}) if regions else {}
-            for region, stats in per_region.items():
+        position = correspondence.get("position") or {}  # metrics JSONs written before it have none
+        values.update({f"position_{k}": float(position[k]) for k in CORRESPONDENCE_KEYS if is_number(position.get(k))})
+        for score, scores in (("correspondence", correspondence), ("position", position)) if regions else ():
+            for region, stats in (scores.get("regions") or {}).items():
                 values.update({region_name(region, k, score): float(stats[k])
                                for k in REGION_KEYS if is_number(stats.get(k))})
     return values
