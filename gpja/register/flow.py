@@ -19,7 +19,9 @@ One round:
    backward flow returns it (``|flow(p) + back(p')|`` below a pixel tolerance) and the scan covers
    ``p'``; its 3D target is the scan's point seen at ``p'`` (the cached scan depth, unprojected).
 4. A vertex's targets from several views are combined by their median; views further than
-   ``spread`` mm from it are dropped.
+   ``spread`` mm from it are dropped. With ``still_mm`` > 0 (beyond the stage as first written), a
+   combined target closer than that to its vertex becomes the vertex itself: a match that says "hardly
+   moved" is read as "did not move" (below, ``match_round``).
 5. The mesh moves by the smooth displacement ``d`` minimising
    ``sum_i w_i |x_i + d_i - t_i|^2 + mu |L d|^2`` (``L`` the graph Laplacian normalised by the
    degree, so ``mu`` does not depend on the resolution), re-weighted twice by the residual
@@ -72,12 +74,15 @@ class FlowSettings:
         fb_tolerance_px: forward-backward flow disagreement (px) above which a match is dropped.
         spread_mm: views whose target is further than this from the vertex's median target are
             dropped, and the residual re-weighting's scale (mm).
+        still_mm: a target closer than this to its vertex is replaced by the vertex (0 = off, the stage as
+            first written; ``match_round``).
     """
 
     rounds: int = 3
     smoothness: float = 30.0
     fb_tolerance_px: float = 1.0
     spread_mm: float = 2.0
+    still_mm: float = 0.0
 
 
 def to_grey_u8(image: np.ndarray) -> np.ndarray:
@@ -231,7 +236,15 @@ def solve_displacement(V: np.ndarray, F: np.ndarray, target: np.ndarray, weight:
 
 def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.Tensor, mask_texture: torch.Tensor,
                 settings: FlowSettings, render: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The flow targets of ``mesh``'s vertices: target (n, 3) mm (NaN = none) and weight (n,)."""
+    """The flow targets of ``mesh``'s vertices: target (n, 3) mm (NaN = none) and weight (n,).
+
+    ``settings.still_mm``: why a small match is taken as no motion. Below a pixel (about 1 mm at 512^2) the
+    flow's answer is its bias, not the surface's motion: on the nose, where nothing moves between two
+    expressions, every flow stage of the default schedule slid the vertices 0.2-0.3 mm down the slopes
+    (docs/experiments.md, "The nose slides"). Read as "stays", such a match holds its vertex where the
+    descent left it, and the descent, whose basin is a few pixels, aligns what is left. Large motions (a
+    closing jaw, 5-20 mm) are kept as they are.
+    """
     from gpja.render import Topology, render_views, sample_texture, vertex_normals
 
     render = render or render_views
@@ -259,6 +272,9 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
             camera, mesh.V, normals, use, to_grey_u8(colour[b]), depth[b], to_grey_u8(images[b]), scan_depth[b],
             scan_cov[b], settings.fb_tolerance_px)
     target, count = combine_views(per_view, settings.spread_mm)
+    if settings.still_mm > 0:
+        still = np.isfinite(target).all(1) & (np.linalg.norm(target - mesh.V, axis=1) < settings.still_mm)
+        target[still] = mesh.V[still]
     return target, count.astype(np.float64)
 
 

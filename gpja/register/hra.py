@@ -21,6 +21,9 @@ Choices beyond the paper's text, made deliberately:
   outlines move at a rate comparable to the interior.
 - Each constraint is an average over the pixels it counts, so the three have
   comparable scales in the logs (the uniform Adam step is scale-free anyway).
+- Optionally (``Schedule.color_gradient: tangential``), the colour constraint moves vertices only along
+  the surface (:func:`along_surface`): what a texture can tell is where on the surface a point is;
+  how far off the scan it lies is the depth and normal constraints' to say.
 """
 from __future__ import annotations
 
@@ -33,6 +36,9 @@ from gpja.camera import Camera
 from gpja.render import RenderOutput, Topology, image_l1, render_views
 
 CONSTRAINTS = ("color", "depth", "normal")
+#: How the colour constraint's gradient reaches the vertices: all of it (the paper), or only its part in each
+#: vertex's tangent plane (:func:`along_surface`).
+COLOR_GRADIENTS = ("full", "tangential")
 #: Cost of a scan pixel the template does not cover, in the depth constraint's units (mm).
 SILHOUETTE_DEPTH_MM = 10.0
 #: The same for the normal constraint (units of a normal difference, per channel).
@@ -159,3 +165,39 @@ def render_constraint(constraint: str, V: torch.Tensor, topology: Topology, targ
     out = render(V, topology, targets.cameras, passes_for(constraint, switches), uv=uv, texture=texture,
                  mask_texture=mask_texture, sh=targets.sh, cull_backfaces=cull_backfaces)
     return constraint_loss(constraint, out, targets, switches, color_pool), out
+
+
+class _AlongSurface(torch.autograd.Function):
+    """Identity forward; backward keeps each vertex's gradient in the plane orthogonal to its normal."""
+
+    @staticmethod
+    def forward(ctx, V: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(normals)
+        return V.view_as(V)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        (n,) = ctx.saved_tensors
+        return grad - (grad * n).sum(1, keepdim=True) * n, None
+
+
+def along_surface(V: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """``V`` unchanged, whose gradient reaches the vertices only along the surface.
+
+    Why (docs/experiments.md, "The colour constraint pushes the nose in"): with the estimated lighting the
+    colour loss also has a gradient along the normals (on the template's nose it is along the normal at every
+    vertex: the colour "wants" the nose smaller), which the depth constraint undoes along the view rays;
+    the two steps do not cancel on a slope, and their sum slides the surface. Dropping the normal part
+    leaves colour the tangential alignment that only it can see.
+
+    Args:
+        V: (n, 3) float32/float64 vertex positions, mm, part of the autograd graph.
+        faces: (m, 3) int64 triangles (counter-clockwise from outside).
+    Returns:
+        (n, 3) the same values; backward: ``g - (g . n) n`` per vertex, ``n`` the area-weighted unit normal
+        of the (detached) current positions.
+    """
+    from gpja.render import vertex_normals
+
+    normals = vertex_normals(V.detach(), faces).to(V.dtype)
+    return _AlongSurface.apply(V, normals)

@@ -67,7 +67,7 @@ from gpja.errors import GpjaError
 from gpja.mesh import TexturedMesh
 from gpja.register.flow import FlowSettings
 from gpja.register.hold import TangentialHold
-from gpja.register.hra import ExpressionTargets, Switches, render_constraint
+from gpja.register.hra import COLOR_GRADIENTS, ExpressionTargets, Switches, along_surface, render_constraint
 from gpja.register.largesteps import LargeStepsParametrization
 from gpja.register.remesh import refine_by_factor
 from gpja.render import Topology
@@ -114,6 +114,12 @@ class Schedule:
             (0 = none, the paper; beyond the paper). Only runs when the colour constraint is on.
         flow_levels: how many levels, from the first, start with those rounds.
         flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
+        flow_still_mm: a flow match that moves its vertex less than this is taken as "stays" (0 = off, the
+            stage as first written; ``gpja.register.flow.match_round``).
+        color_gradient: "full" = the colour constraint's whole gradient moves the vertices (the paper);
+            "tangential" = only its part along the surface (``gpja.register.hra.along_surface``, beyond the
+            paper): on the template's nose the colour's normal push, undone by depth along the view rays,
+            slid the surface 0.5 mm.
         average_iterations: a level ends with the mean of the vertex positions after its last this many
             steps instead of the last one (0 = the last, the paper; beyond the paper). Uniform Adam keeps
             every vertex moving by about a step to the end of a level, so the last iterate lies a random
@@ -134,6 +140,8 @@ class Schedule:
     flow_rounds: int = 0
     flow_levels: int = 1
     flow_smoothness: float = FlowSettings.smoothness
+    flow_still_mm: float = FlowSettings.still_mm
+    color_gradient: str = "full"
     average_iterations: int = 0
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
@@ -168,6 +176,10 @@ class Schedule:
             raise ValueError(f"average_iterations must be >= 0, got {self.average_iterations}")
         if not float(self.flow_smoothness) > 0.0:
             raise ValueError(f"flow_smoothness must be > 0, got {self.flow_smoothness}")
+        if not float(self.flow_still_mm) >= 0.0:
+            raise ValueError(f"flow_still_mm must be >= 0, got {self.flow_still_mm}")
+        if self.color_gradient not in COLOR_GRADIENTS:
+            raise ValueError(f"color_gradient must be one of {', '.join(COLOR_GRADIENTS)}, got {self.color_gradient!r}")
         if not 0.0 <= float(self.hold_tangential) < 1.0:
             raise ValueError(f"hold_tangential must be in [0, 1), got {self.hold_tangential}")
         if len(self.hold_moved_mm) != 2 or not 0.0 <= float(self.hold_moved_mm[0]) < float(self.hold_moved_mm[1]):
@@ -279,7 +291,8 @@ def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedul
     as stage ``name``; returns the moved mesh (same topology)."""
     from gpja.register.flow import align_by_flow
 
-    settings = FlowSettings(rounds=int(schedule.flow_rounds), smoothness=float(schedule.flow_smoothness))
+    settings = FlowSettings(rounds=int(schedule.flow_rounds), smoothness=float(schedule.flow_smoothness),
+                            still_mm=float(schedule.flow_still_mm))
     mesh, entry = align_by_flow(mesh, targets, texture, mask_texture, settings, render=render, progress=progress)
     log.levels.append({**entry, "stage": name})
     if on_stage is not None:
@@ -343,6 +356,8 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
         t1 = time.perf_counter()
         if averaged > 1 and it > n_iter - averaged:
             position_sum = x.detach().double() + (0.0 if position_sum is None else position_sum)
+        if constraint == "color" and schedule.color_gradient == "tangential":
+            x = along_surface(x, topo.faces)
         loss, _ = render_constraint(constraint, x, topo, targets, switches, uv, texture, mask_texture,
                                     render=render, cull_backfaces=cull_backfaces, color_pool=pool)
         value = loss.detach().item()

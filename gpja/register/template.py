@@ -79,7 +79,8 @@ class TemplateSettings:
     schedule: Schedule = field(default_factory=lambda: Schedule(lambdas=(200.0, 120.0, 80.0), iterations=(150, 150, 150)),
                                metadata={HIDDEN: ("color_pool", "warmup_iterations", "warmup_geometry", "optimizer_state",
                                                    "hold_tangential", "hold_moved_mm", "flow_rounds",
-                                                   "flow_levels", "flow_smoothness", "average_iterations")})
+                                                   "flow_levels", "flow_smoothness", "flow_still_mm", "color_gradient",
+                                                   "average_iterations")})
     texture_method: str = "fusion"
     texture_size: int = 1024
     texture_size_from_images: bool = True

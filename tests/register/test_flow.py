@@ -179,3 +179,21 @@ def test_the_mouth_socket_is_not_matched():
     masked, _ = match_round(template, targets, texture, torch.zeros(4, 4, 1), FlowSettings())
     assert np.isfinite(target).all(1).sum() > 100
     assert not np.isfinite(masked).any()
+
+
+def test_a_match_smaller_than_still_mm_holds_its_vertex_and_a_large_one_is_kept():
+    """``still_mm``: the sphere turned 0.5 degrees (0.5 mm at the front) gives matches under 1 mm, which become
+    the vertices themselves; the 16-degree turn's matches (~17 mm) are the same with and without it."""
+    from gpja.register.flow import match_round
+
+    mask = torch.ones(4, 4, 1)
+    for degrees, moved in ((0.5, False), (FLOW_TURN_DEG, True)):
+        template, texture, targets, _ = sphere_scene(degrees)
+        plain, _ = match_round(template, targets, texture, mask, FlowSettings())
+        held, _ = match_round(template, targets, texture, mask, FlowSettings(still_mm=1.0))
+        matched = np.isfinite(plain).all(1)
+        assert matched.sum() > 100 and np.array_equal(matched, np.isfinite(held).all(1))
+        small = matched & (np.linalg.norm(plain - template.V, axis=1) < 1.0)
+        np.testing.assert_array_equal(held[small], template.V[small])
+        np.testing.assert_array_equal(held[matched & ~small], plain[matched & ~small])
+        assert (small.sum() < 0.1 * matched.sum()) if moved else (small.sum() > 0.5 * matched.sum())

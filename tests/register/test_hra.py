@@ -6,6 +6,10 @@ from gpja.register.hra import ExpressionTargets, Switches, constraint_loss, pass
 from gpja.render import Topology, render_views
 from tests.render.scenes import ring_cameras, sphere, spherical_uv
 
+#: What is left of a radial gradient after the projection on a level-3 sphere: its area-weighted vertex normals are
+#: within a fraction of a degree of radial (unit gradient, so this is sin of that angle).
+NORMAL_RESIDUE = 0.02
+
 
 def setup(size=48):
     V, F = sphere(subdivisions=3, radius=60.0)
@@ -111,3 +115,40 @@ def test_render_constraint_renders_with_the_given_function():
         spied, _ = render_constraint(constraint, moved, topo, targets, Switches(), uv, tex, mask, render=spy)
         assert torch.equal(default, spied)
     assert calls == [("color", "mask"), ("depth",), ("normal",)]
+
+
+def test_along_surface_keeps_the_values_and_drops_the_normal_part_of_the_gradient():
+    """Analytic case: on a sphere about the origin the vertex normals are (nearly) radial, so a loss pulling
+    every vertex outwards has no gradient left, and one turning the sphere about z keeps all of it."""
+    from gpja.register.hra import along_surface
+
+    V, F = sphere(subdivisions=3, radius=60.0)
+    faces = torch.from_numpy(F)
+    x = torch.tensor(V, dtype=torch.float64, requires_grad=True)
+    y = along_surface(x, faces)
+    assert torch.equal(y, x)
+    radial = x / x.norm(dim=1, keepdim=True)
+    (y * radial.detach()).sum().backward()  # gradient = the radial direction: all normal
+    assert x.grad.norm(dim=1).max() < NORMAL_RESIDUE
+    x.grad = None
+    turn = torch.stack([-x[:, 1], x[:, 0], torch.zeros_like(x[:, 0])], dim=1).detach()
+    (along_surface(x, faces) * turn).sum().backward()  # gradient = a tangent field: kept
+    torch.testing.assert_close(x.grad, turn, atol=NORMAL_RESIDUE * 60.0, rtol=0.0)
+
+
+def test_along_surface_gradient_is_the_tangential_projection_of_the_plain_one():
+    """Gradient identity on a random loss: projected gradient + its normal part = the plain gradient."""
+    from gpja.register.hra import along_surface
+    from gpja.render import vertex_normals
+
+    V, F = sphere(subdivisions=2, radius=30.0)
+    faces = torch.from_numpy(F)
+    weights = torch.randn(len(V), 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    x = torch.tensor(V, dtype=torch.float64, requires_grad=True)
+    ((x ** 2) * weights).sum().backward()
+    plain = x.grad.clone()
+    x.grad = None
+    ((along_surface(x, faces) ** 2) * weights).sum().backward()
+    n = vertex_normals(x.detach(), faces)
+    torch.testing.assert_close(x.grad + (plain * n).sum(1, keepdim=True) * n, plain)
+    assert (x.grad * n).sum(1).abs().max() < 1e-9
