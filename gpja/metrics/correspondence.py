@@ -39,6 +39,15 @@ of a closed mouth, an eyeball under a closed lid), so it is not scored. The regi
 so a vertex is never dropped because it ended up far from the scan. The position error is reported as
 ``position`` with the same statistics and regions as the main score.
 
+The **floor** is the correspondence score's lower bound, the same for every method: the score of a
+registration that puts every usable template vertex where the expression carries its material or, where
+that material is hidden, on the nearest material that is present. Vertex ``i``'s floor is the rest-space
+distance from ``m_tpl(i)`` to the expression's rest-space scan; its registered error can never be smaller
+(``m_reg(i)`` lies on that surface). It is 0 for material the expression shows; a closed lid hides the
+eyeball (S01 ``18_eye_closed``: 69% of the eye region's template vertices, region median 2.4 mm), a closed
+mouth the inner lips (half the mouth region, median 0.3-0.5 mm). Reported as ``floor`` with the same
+statistics and regions, so a region's score reads against what any registration can reach there.
+
 By region: where the ground truth has the rest landmarks (``landmarks_rest``), every used vertex
 is labelled by the facial region of ``m_tpl(i)`` (:mod:`gpja.metrics.regions`: mouth, eyes, nose,
 brows, the rest of the face, ears/scalp/neck), and the scores gain ``regions.{region}.{median_mm,
@@ -139,7 +148,10 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
         (index into :data:`gpja.metrics.regions.REGIONS`, ``UNLABELLED`` where unused); ``position``, the
         position error (module docstring): ``mean_mm``, ``median_mm``, ``p95_mm``, ``max_mm``, ``n_used``,
         ``fraction_used``, ``present_mm`` and with landmarks ``regions``; ``vertex_position_error_mm``
-        (n_template,) float64, NaN where the template vertex is unusable or its material is not present.
+        (n_template,) float64, NaN where the template vertex is unusable or its material is not present;
+        ``floor``, the score's lower bound (module docstring): ``mean_mm``, ``median_mm``, ``p95_mm``, ``max_mm``,
+        ``n_used``, ``fraction_used`` over the usable template vertices and with landmarks ``regions``;
+        ``vertex_floor_mm`` (n_template,) float64, every scored vertex's ``vertex_error_mm`` is at least its floor.
     Raises:
         InputError: fewer registered vertices than template vertices, NaN
         positions, rest coordinates that do not match their scan, or no vertex
@@ -163,7 +175,10 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
     out = summarise(error, used)
     out.update(n_template_vertices=len(V_template), max_distance_mm=float(max_distance_mm),
                vertex_error_mm=error, vertex_used=used)
-    truth, present = material_positions(m_tpl, scan_expr, rest_expr)
+    truth, present, hidden_mm = material_positions(m_tpl, scan_expr, rest_expr)
+    floor = np.where(usable_tpl, hidden_mm, np.nan)
+    out["floor"] = summarise(floor, usable_tpl)
+    out["vertex_floor_mm"] = floor
     placed = usable_tpl & present
     position = np.where(placed, np.linalg.norm(V_reg[: len(V_template)] - truth, axis=1), np.nan)
     out["position"] = {**summarise(position, placed), "present_mm": PRESENT_MM}
@@ -174,6 +189,7 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
         regions = np.where(used, labels, UNLABELLED).astype(np.int8)
         out.update(regions=region_statistics(error, regions), vertex_region=regions)
         out["position"]["regions"] = region_statistics(position, np.where(placed, labels, UNLABELLED))
+        out["floor"]["regions"] = region_statistics(floor, labels)
     return out
 
 
@@ -188,7 +204,7 @@ def summarise(error: np.ndarray, used: np.ndarray) -> dict:
 
 
 def material_positions(material: np.ndarray, scan: tuple[np.ndarray, np.ndarray], rest: np.ndarray,
-                       present_mm: float = PRESENT_MM) -> tuple[np.ndarray, np.ndarray]:
+                       present_mm: float = PRESENT_MM) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where an expression's scan puts rest-space material points: the inverse of :func:`material_coordinates`.
 
     Args:
@@ -198,11 +214,13 @@ def material_positions(material: np.ndarray, scan: tuple[np.ndarray, np.ndarray]
         present_mm: material farther than this from the scan's rest-space surface is not present (hidden).
     Returns:
         positions: (q, 3) float64 expression-space points, mm; present: (q,) bool, the material lies on the
-        scan in rest space (within ``present_mm``, not at its boundary).
+        scan in rest space (within ``present_mm``, not at its boundary); hidden_mm: (q,) float64 the rest-space
+        distance, mm, from each material point to the nearest material the scan shows (0 where it shows it).
     """
     rest_surface = prepare_surface(rest, scan[1])
     cp = rest_surface.closest(material)
-    return interpolate(rest_surface, cp, scan[0]), (cp.distance <= present_mm) & ~cp.on_boundary
+    return (interpolate(rest_surface, cp, scan[0]), (cp.distance <= present_mm) & ~cp.on_boundary,
+            np.asarray(cp.distance, dtype=np.float64))
 
 
 def ground_truth_path(ground_truth_root: str | Path, subject: str, expression: str) -> Path:
@@ -238,8 +256,8 @@ def correspondence_error_files(mesh_path: str | Path, template_path: str | Path,
         template_path: the subject's template OBJ (fitted to ``template_expression``).
         scans_root: ``{scans_root}/{subject}/{expression}.ply`` (synthetic: already mm).
         ground_truth_root: ``{ground_truth_root}/{subject}/{expression}.npz``.
-        errors_path: where to write ``vertex_error_mm``, ``vertex_used`` and ``vertex_position_error_mm``
-            (``.npz``; with the template expression's ``landmarks_rest`` also ``vertex_region`` and
+        errors_path: where to write ``vertex_error_mm``, ``vertex_used``, ``vertex_position_error_mm`` and
+            ``vertex_floor_mm`` (``.npz``; with the template expression's ``landmarks_rest`` also ``vertex_region`` and
             ``region_names``), or None.
         max_distance_mm: projection cap (module docstring).
     Returns:
@@ -267,7 +285,8 @@ def correspondence_error_files(mesh_path: str | Path, template_path: str | Path,
         labels = {} if landmarks is None else {"vertex_region": result["vertex_region"],
                                                "region_names": np.array(REGIONS)}
         write_npz(errors_path, vertex_error_mm=result["vertex_error_mm"], vertex_used=result["vertex_used"],
-                  vertex_position_error_mm=result["vertex_position_error_mm"], **labels)
+                  vertex_position_error_mm=result["vertex_position_error_mm"],
+                  vertex_floor_mm=result["vertex_floor_mm"], **labels)
     out = {"mesh": str(mesh_path), "template": str(template_path), "subject": str(subject),
            "expression": expression, "template_expression": template_expression}
     out.update({k: v for k, v in result.items() if not isinstance(v, np.ndarray)})

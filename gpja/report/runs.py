@@ -27,6 +27,10 @@ CORRESPONDENCE_NAMES = tuple(f"correspondence_{k}" for k in CORRESPONDENCE_KEYS)
 POSITION_NAMES = tuple(f"position_{k}" for k in CORRESPONDENCE_KEYS)
 #: The per-region correspondence scores the tables read (``correspondence.regions.{region}.{key}``).
 REGION_KEYS = ("median_mm", "mean_mm")
+#: The correspondence score's floor (``correspondence.floor``, :mod:`gpja.metrics.correspondence`): the same keys.
+FLOOR_NAMES = tuple(f"floor_{k}" for k in CORRESPONDENCE_KEYS)
+#: The tables' row of the floor: a bound, not a method (the same in every method's record).
+FLOOR = "floor"
 
 
 def read_required_json(path: str | Path, what: str) -> dict:
@@ -97,7 +101,9 @@ def flat_metrics(record: dict, regions: bool = False) -> dict[str, float]:
     truth ``correspondence_mean_mm``, ``correspondence_median_mm``, ``correspondence_p95_mm`` (mm) and per
     facial region ``correspondence_{region}_median_mm``, ``correspondence_{region}_mean_mm`` (mm; regions of
     :data:`gpja.metrics.regions.REGIONS` with a scored vertex); the position error (``correspondence.position``)
-    likewise as ``position_*``. A reference's record (the oracle) has no geometry names.
+    likewise as ``position_*``; with ``regions`` also the score's floor (``correspondence.floor``, a bound the
+    same for every method, for the tables' floor row, not the regression check) as ``floor_*``. A reference's
+    record (the oracle) has no geometry names.
     """
     values = {}
     geometry = record.get("geometry")
@@ -111,7 +117,10 @@ def flat_metrics(record: dict, regions: bool = False) -> dict[str, float]:
         values.update({f"correspondence_{k}": float(correspondence[k]) for k in CORRESPONDENCE_KEYS})
         position = correspondence.get("position") or {}  # metrics JSONs written before it have none
         values.update({f"position_{k}": float(position[k]) for k in CORRESPONDENCE_KEYS if is_number(position.get(k))})
-        for score, scores in (("correspondence", correspondence), ("position", position)) if regions else ():
+        floor = (correspondence.get("floor") or {}) if regions else {}  # metrics JSONs written before it have none
+        values.update({f"floor_{k}": float(floor[k]) for k in CORRESPONDENCE_KEYS if is_number(floor.get(k))})
+        scored = (("correspondence", correspondence), ("position", position), ("floor", floor))
+        for score, scores in scored if regions else ():
             for region, stats in (scores.get("regions") or {}).items():
                 values.update({region_name(region, k, score): float(stats[k])
                                for k in REGION_KEYS if is_number(stats.get(k))})
@@ -127,6 +136,37 @@ def region_name(region: str, key: str, score: str = "correspondence") -> str:
 REGION_NAMES = tuple(region_name(r, k) for r in REGIONS for k in REGION_KEYS)
 #: The same for the position error.
 POSITION_REGION_NAMES = tuple(region_name(r, k, "position") for r in REGIONS for k in REGION_KEYS)
+
+
+def floor_run(run: Run) -> Run | None:
+    """The correspondence score's floor as a run of one pseudo-method, :data:`FLOOR`, whose values carry the
+    correspondence names (``correspondence_median_mm``, ``correspondence_{region}_median_mm``, ...), so a table
+    puts it beside the methods. Each (subject, expression) takes the floor of the first of ``run.methods`` whose
+    record has one (it depends only on the template and the ground truth); None when no record has one."""
+    values, paths = {}, {}
+    for s in run.subjects:
+        for e in run.expressions:
+            for m in run.methods:
+                record = run.values[(s, m, e)]
+                if any(n.startswith("floor_") for n in record):
+                    values[(s, FLOOR, e)] = {"correspondence_" + n[len("floor_"):]: v for n, v in record.items()
+                                             if n.startswith("floor_")}
+                    paths[(s, FLOOR, e)] = run.paths[(s, m, e)]
+                    break
+            else:
+                values[(s, FLOOR, e)] = {}
+    if not paths:
+        return None
+    return Run(list(run.subjects), [FLOOR], list(run.expressions), values, paths)
+
+
+def with_floor(run: Run) -> Run:
+    """``run`` with the floor's row (:func:`floor_run`) after its methods, or ``run`` itself when it has no floor."""
+    floor = floor_run(run)
+    if floor is None:
+        return run
+    return Run(list(run.subjects), [*run.methods, FLOOR], list(run.expressions), {**run.values, **floor.values},
+               {**run.paths, **floor.paths})
 
 
 @dataclass

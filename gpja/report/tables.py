@@ -65,6 +65,7 @@ from gpja.report.runs import (
     means,
     metric_family,
     subject_stats,
+    with_floor,
 )
 from gpja.report.table_model import (
     BETTER,
@@ -79,7 +80,7 @@ from gpja.report.table_model import (
     plural,
     subject_label,
 )
-from gpja.report.tables_truth import correspondence_regions_table, position_regions_table, texture_table
+from gpja.report.tables_truth import correspondence_regions_table, floor_note, position_regions_table, texture_table
 from gpja.report.timing import timing_table
 from gpja.results import Layout
 
@@ -250,6 +251,7 @@ def correspondence_table(run: Run) -> Table:
     if not any(names[0] in v for v in run.values.values()):
         first = next(iter(run.paths.values()))
         raise InputError(first, "no correspondence scores in any metrics JSON (they need synthetic ground truth)")
+    run = with_floor(run)
     stats = subject_stats(run, run.methods, names)
     lines = run.subjects + [AVERAGE]
     rows = [[subject_label(s), method_label(m)] + [metric_cell(stats[(s, m)][n], n) for n in names]
@@ -260,7 +262,8 @@ def correspondence_table(run: Run) -> Table:
     csv_rows = [[s, m, count_values(run, run.subjects if s == AVERAGE else [s], m, names[0]),
                  *[stats[(s, m)][n] for n in names]] for s in lines for m in run.methods]
     notes = [("Distance (mm) between where a template vertex lands and where its ground-truth point moved, means "
-              f"over the expressions of the per-expression mean, median and 95th percentile. {DASH}: not scored.")]
+              f"over the expressions of the per-expression mean, median and 95th percentile. {DASH}: not scored."),
+             *floor_note(run)]
     caption = "Correspondence error against the synthetic ground truth (mm) per subject and method."
     return Table("correspondence", caption, [block], csv_header, csv_rows, notes)
 

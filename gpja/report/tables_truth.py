@@ -4,6 +4,8 @@ quality against the generator's albedo.
 - ``correspondence_regions``: per subject (and the ``Average`` of the subject means) and method, the
   median and mean correspondence error (mm) of each facial region (:mod:`gpja.metrics.regions`), means
   over the expressions of the per-expression values in ``correspondence.regions`` of the metrics JSONs.
+  Both correspondence tables end each subject with the floor's row (``correspondence.floor``: the least any
+  registration can score; :func:`gpja.report.runs.with_floor`).
 - ``position_regions``: the same from the ground truth's side (``correspondence.position``: the distance from
   each registered vertex to where the expression put its material, which also counts the vertices that left
   the scan), with the overall median, mean and 95th percentile first.
@@ -22,6 +24,7 @@ from gpja.metrics.texture_quality import QUALITY_FILE
 from gpja.report.runs import (
     AVERAGE,
     CORRESPONDENCE_KEYS,
+    FLOOR,
     POSITION_NAMES,
     POSITION_REGION_NAMES,
     REGION_KEYS,
@@ -32,12 +35,23 @@ from gpja.report.runs import (
     read_required_json,
     region_name,
     subject_stats,
+    with_floor,
 )
 from gpja.report.table_model import DASH, Block, Cell, Table, header, metric_cell, subject_label
 from gpja.results import Layout
 
 #: Flat metric of each per-region key (digits and headers as the correspondence table's).
 REGION_METRIC = {"median_mm": "correspondence_median_mm", "mean_mm": "correspondence_mean_mm"}
+#: What the correspondence tables' floor row is (gpja.report.runs.floor_run).
+FLOOR_NOTE = ("Floor (hidden material): the least any registration can score (gpja/metrics/correspondence.py): "
+              "every template vertex where the expression carries its material or, where that material is hidden "
+              "(an eyeball under a closed lid, the inner lips of a closed mouth), on the nearest material that is "
+              "shown. No vertex scores below its floor.")
+
+
+def floor_note(run: Run) -> list[str]:
+    """The floor row's note when ``run`` has that row (:func:`gpja.report.runs.with_floor`)."""
+    return [FLOOR_NOTE] if FLOOR in run.methods else []
 
 
 def correspondence_regions_table(run: Run) -> Table:
@@ -47,6 +61,7 @@ def correspondence_regions_table(run: Run) -> Table:
         first = next(iter(run.paths.values()))
         raise InputError(first, "no per-region correspondence scores in any metrics JSON (they need the synthetic "
                                 "ground truth's landmarks_rest)")
+    run = with_floor(run)
     columns = [(region_name(r, k), REGION_METRIC[k]) for r in REGIONS for k in REGION_KEYS]
     stats, lines, block = score_block(run, columns, [(REGION_LABELS[r], len(REGION_KEYS)) for r in REGIONS])
     csv_header = ["subject", "method", "region", "expressions", *REGION_KEYS]
@@ -58,7 +73,7 @@ def correspondence_regions_table(run: Run) -> Table:
               f"rest landmarks (gpja/metrics/regions.py): the nearest feature group within its radius ({radii}; "
               "mouth, eyes and nose also inside their frontal contours, the mouth also its cavity), else the rest of "
               f"the face inside the jaw line and the raised brows, else ears/scalp/neck. {DASH}: no scored vertex in "
-              "the region.")]
+              "the region."), *floor_note(run)]
     caption = "Correspondence error by facial region against the synthetic ground truth (mm): median and mean."
     return Table("correspondence_regions", caption, [block], csv_header, csv_rows, notes)
 

@@ -112,8 +112,8 @@ def test_material_positions_inverts_material_coordinates():
     X = deform(P, EXPRESSION)                                        # on the expression's scan
     material, usable = material_coordinates(X, scan, rest, 2.0)
     assert usable.all()
-    where, present = material_positions(material, scan, rest)
-    assert present.all()
+    where, present, hidden_mm = material_positions(material, scan, rest)
+    assert present.all() and (hidden_mm < CORRESPONDENCE_EXACT_MM).all()
     np.testing.assert_allclose(where, X, atol=CORRESPONDENCE_EXACT_MM)
     np.testing.assert_allclose(material, P, atol=CORRESPONDENCE_EXACT_MM)
 
@@ -150,6 +150,46 @@ def test_position_error_skips_material_hidden_in_the_expression():
     np.testing.assert_allclose(e[[0, 2]], 0.3, atol=CORRESPONDENCE_EXACT_MM)
 
 
+# --- floor (the score's lower bound) ------------------------------------------------------
+
+def hidden_strip_case():
+    """The flat patch; the expression's scan lacks the strip |x| < 20 (its material hidden, a closed lid)."""
+    V, F = grid()
+    centre = V[F].mean(axis=1)
+    scans = {TEMPLATE_EXPRESSION: ((V, F), V), EXPRESSION: ((V + [0.0, 0.0, 2.0], F[np.abs(centre[:, 0]) > 20.0]), V)}
+    return V, F, scans
+
+
+def test_floor_is_the_distance_to_the_nearest_material_shown():
+    _, _, scans = hidden_strip_case()
+    # material at x = -50 (shown), 0 and 12 (hidden: 20 and 8 mm from the strip's edges' nearest), 30 (shown)
+    P = np.array([[-50.0, 0.0, 0.0], [0.0, 5.0, 0.0], [12.0, -5.0, 0.0], [30.0, 10.0, 0.0]])
+    # nearly the best registration: every vertex on its own material, the hidden ones 1 mm past the nearest edge
+    # of the strip (on the edge itself the projection is on the scan's boundary, which the score drops)
+    best = np.array([[-50.0, 0.0, 2.0], [-21.0, 5.0, 2.0], [21.0, -5.0, 2.0], [30.0, 10.0, 2.0]])
+    out = correspondence_error(best, P, *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION])
+    np.testing.assert_allclose(out["vertex_floor_mm"], [0.0, 20.0, 8.0, 0.0], atol=CORRESPONDENCE_EXACT_MM)
+    np.testing.assert_allclose(out["vertex_error_mm"], [0.0, 21.0, 9.0, 0.0], atol=CORRESPONDENCE_EXACT_MM)
+    floor = out["floor"]
+    assert floor["n_used"] == 4 and floor["median_mm"] == pytest.approx(4.0, abs=CORRESPONDENCE_EXACT_MM)
+    assert floor["mean_mm"] == pytest.approx(7.0, abs=CORRESPONDENCE_EXACT_MM)
+    # the floor is the template's and the ground truth's: the same for any registration
+    moved = correspondence_error(best + [[3.0, 1.0, 0.0]], P, *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION])
+    np.testing.assert_array_equal(moved["vertex_floor_mm"], out["vertex_floor_mm"])
+
+
+def test_no_registration_scores_below_its_floor():
+    _, _, scans = hidden_strip_case()
+    rng = np.random.default_rng(3)
+    P = np.column_stack([rng.uniform(-60, 60, 300), rng.uniform(-60, 60, 300), np.zeros(300)])
+    for shift in (0.0, 4.0, 15.0):
+        V_reg = P + [shift, 0.0, 2.0] + np.column_stack([rng.normal(0, 2, (300, 2)), np.zeros(300)])
+        out = correspondence_error(V_reg, P, *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION])
+        used = out["vertex_used"]
+        assert used.sum() > 100
+        assert (out["vertex_error_mm"][used] >= out["vertex_floor_mm"][used] - CORRESPONDENCE_EXACT_MM).all()
+
+
 # --- files --------------------------------------------------------------------------------
 
 def write_subject(root, V, F, P):
@@ -180,6 +220,9 @@ def test_files_exact_registration_and_error_npz(tmp_path):
     assert out["template_expression"] == TEMPLATE_EXPRESSION and out["errors"] == str(errors)
     arrays = read_npz(errors)
     assert arrays["vertex_error_mm"].shape == (len(P),) and arrays["vertex_used"].dtype == bool
+    # every material is shown in the expression: the floor is 0 everywhere
+    assert arrays["vertex_floor_mm"].shape == (len(P),) and np.nanmax(arrays["vertex_floor_mm"]) < CORRESPONDENCE_EXACT_MM
+    assert out["floor"]["median_mm"] < CORRESPONDENCE_EXACT_MM
 
 
 def test_files_break_the_error_down_by_facial_region(tmp_path):
@@ -224,6 +267,9 @@ def test_files_break_the_error_down_by_facial_region(tmp_path):
     p = arrays["vertex_position_error_mm"]
     assert sum(r["count"] for r in position.values()) == out["position"]["n_used"] == np.isfinite(p).sum()
     assert position["mouth"]["count"] >= regions["mouth"]["count"]
+    # and so has the floor (nothing hidden here: 0 in every region)
+    assert list(out["floor"]["regions"]) == list(REGIONS)
+    assert all(r["median_mm"] is None or r["median_mm"] < CORRESPONDENCE_EXACT_MM for r in out["floor"]["regions"].values())
     # without landmarks_rest there is no breakdown
     write_npz(gt, scan_rest_coords=V)
     assert "regions" not in run_files(tmp_path, template, registered, errors_path=errors)

@@ -62,6 +62,44 @@ def test_position_regions_table_means_per_subject_and_method(run_dir):
         position_regions_table(bare)
 
 
+def add_floor(results, subject, method, expression, median: float):
+    """Add the correspondence score's floor (overall: median, median + 1, median + 4; region k: median + k)."""
+    path = Layout(results).metrics(subject, method, expression)
+    record = json.loads(path.read_text())
+    record["correspondence"]["floor"] = {
+        "median_mm": median, "mean_mm": median + 1.0, "p95_mm": median + 4.0, "max_mm": 20.0, "n_used": 10,
+        "fraction_used": 1.0,
+        "regions": {r: {"median_mm": median + k, "mean_mm": median + k, "p95_mm": 9.0, "count": 10}
+                    for k, r in enumerate(REGIONS)}}
+    path.write_text(json.dumps(record))
+
+
+def test_the_floor_is_a_row_of_the_correspondence_tables_read_from_any_method(run_dir):
+    for s in ("S01", "S02"):
+        for e in (E1, E2):
+            add_regions(run_dir, s, "gpja", e, 1.0)
+            add_regions(run_dir, s, "nicp", e, 0.5)
+            add_floor(run_dir, s, "gpja" if e == E1 else "nicp", e, 0.2 if e == E1 else 0.6)
+    run = load_run(run_dir, ["S01", "S02"], ["gpja", "nicp"], [E1, E2])
+    regions = {(r["subject"], r["method"], r["region"]): r for r in read_csv_rows(to_csv(correspondence_regions_table(run)))}
+    assert float(regions[("S01", "floor", "eyes")]["median_mm"]) == pytest.approx(0.4 + REGIONS.index("eyes"))
+    assert regions[("Average", "floor", "mouth")]["expressions"] == "4"
+    md = to_markdown(T.correspondence_table(run))
+    assert md_row(md, "Average")[0] == "GPJA" and "Floor (hidden material)" in md
+    assert [line for line in md.splitlines() if "Floor (hidden material) |" in line][-1].endswith(
+        "| 1.400 | 0.400 | 4.400 |")  # mean, median, p95 over E1 (gpja's record) and E2 (nicp's)
+    assert "No vertex scores below its floor" in md
+    # metrics written before the floor: no row, no note; the regression check never reads the floor
+    for e in (E1, E2):
+        for m in ("gpja", "nicp"):
+            path = Layout(run_dir).metrics("S01", m, e)
+            record = json.loads(path.read_text())
+            record["correspondence"].pop("floor", None)
+            path.write_text(json.dumps(record))
+    md = to_markdown(T.correspondence_table(load_run(run_dir, ["S01"], ["gpja", "nicp"], [E1, E2])))
+    assert "Floor" not in md and "below its floor" not in md
+
+
 def write_oracle(results, subject, expression, psnr: float):
     """The oracle's metrics JSON (`gpja oracle`): photometric only."""
     path = Layout(results).metrics(subject, "oracle", expression)
