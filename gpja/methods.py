@@ -22,8 +22,7 @@ CONSTRAINTS = ("normal", "depth", "color", "mask")
 #: Kinds of method: the method under test, one of its ablation variants, a baseline run by the
 #: workflow, a mesh made by another tool and imported (``baselines.external``), and a reference that
 #: is no registration: a bound the methods are measured against (the oracle: the synthetic ground
-#: truth rendered and scored photometrically, ``gpja.metrics.oracle``, Table 2 only; the floor: the
-#: correspondence score's lower bound, ``gpja.metrics.correspondence``, the correspondence tables only).
+#: truth rendered and scored photometrically, ``gpja.metrics.oracle``; Table 2 only).
 KINDS = ("gpja", "ablation", "baseline", "imported", "reference")
 
 
@@ -103,7 +102,6 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),
     Method("oracle", "Oracle (ground truth)", "reference"),
-    Method("floor", "Floor (hidden material)", "reference"),
 ]}
 
 

@@ -29,8 +29,8 @@ POSITION_NAMES = tuple(f"position_{k}" for k in CORRESPONDENCE_KEYS)
 REGION_KEYS = ("median_mm", "mean_mm")
 #: The correspondence score's floor (``correspondence.floor``, :mod:`gpja.metrics.correspondence`): the same keys.
 FLOOR_NAMES = tuple(f"floor_{k}" for k in CORRESPONDENCE_KEYS)
-#: The tables' row of the floor: a bound, not a method (the same in every method's record).
-FLOOR = "floor"
+#: What a method's floor row is called after the method (``gpja:floor``; :func:`with_floors`).
+FLOOR_SUFFIX = ":floor"
 
 
 def read_required_json(path: str | Path, what: str) -> dict:
@@ -101,8 +101,8 @@ def flat_metrics(record: dict, regions: bool = False) -> dict[str, float]:
     truth ``correspondence_mean_mm``, ``correspondence_median_mm``, ``correspondence_p95_mm`` (mm) and per
     facial region ``correspondence_{region}_median_mm``, ``correspondence_{region}_mean_mm`` (mm; regions of
     :data:`gpja.metrics.regions.REGIONS` with a scored vertex); the position error (``correspondence.position``)
-    likewise as ``position_*``; with ``regions`` also the score's floor (``correspondence.floor``, a bound the
-    same for every method, for the tables' floor row, not the regression check) as ``floor_*``. A reference's
+    likewise as ``position_*``; with ``regions`` also the score's floor (``correspondence.floor``, the least the
+    scored vertices can score: the tables' floor rows, not the regression check) as ``floor_*``. A reference's
     record (the oracle) has no geometry names.
     """
     values = {}
@@ -138,35 +138,35 @@ REGION_NAMES = tuple(region_name(r, k) for r in REGIONS for k in REGION_KEYS)
 POSITION_REGION_NAMES = tuple(region_name(r, k, "position") for r in REGIONS for k in REGION_KEYS)
 
 
-def floor_run(run: Run) -> Run | None:
-    """The correspondence score's floor as a run of one pseudo-method, :data:`FLOOR`, whose values carry the
-    correspondence names (``correspondence_median_mm``, ``correspondence_{region}_median_mm``, ...), so a table
-    puts it beside the methods. Each (subject, expression) takes the floor of the first of ``run.methods`` whose
-    record has one (it depends only on the template and the ground truth); None when no record has one."""
-    values, paths = {}, {}
-    for s in run.subjects:
-        for e in run.expressions:
-            for m in run.methods:
-                record = run.values[(s, m, e)]
-                if any(n.startswith("floor_") for n in record):
-                    values[(s, FLOOR, e)] = {"correspondence_" + n[len("floor_"):]: v for n, v in record.items()
-                                             if n.startswith("floor_")}
-                    paths[(s, FLOOR, e)] = run.paths[(s, m, e)]
-                    break
-            else:
-                values[(s, FLOOR, e)] = {}
-    if not paths:
-        return None
-    return Run(list(run.subjects), [FLOOR], list(run.expressions), values, paths)
+def floor_of(method: str) -> str:
+    """The name of ``method``'s floor row in the correspondence tables (:func:`with_floors`)."""
+    return f"{method}{FLOOR_SUFFIX}"
 
 
-def with_floor(run: Run) -> Run:
-    """``run`` with the floor's row (:func:`floor_run`) after its methods, or ``run`` itself when it has no floor."""
-    floor = floor_run(run)
-    if floor is None:
-        return run
-    return Run(list(run.subjects), [*run.methods, FLOOR], list(run.expressions), {**run.values, **floor.values},
-               {**run.paths, **floor.paths})
+def floor_label(name: str) -> str | None:
+    """``GPJA floor`` for a floor row's name (:func:`floor_of`), None for any other name."""
+    from gpja.methods import label
+
+    return f"{label(name[: -len(FLOOR_SUFFIX)])} floor" if name.endswith(FLOOR_SUFFIX) else None
+
+
+def with_floors(run: Run) -> Run:
+    """``run`` with each method's floor (``floor_*`` of its records: the least its scored vertices can score) as a
+    row of its own right after the method's, its values under the correspondence names
+    (``correspondence_median_mm``, ``correspondence_{region}_median_mm``, ...) so a table reads both alike.
+    Methods without a floor in any record (metrics written before it, no ground truth) get no row."""
+    methods, values, paths = [], dict(run.values), dict(run.paths)
+    for m in run.methods:
+        methods.append(m)
+        keys = [(s, m, e) for s in run.subjects for e in run.expressions]
+        if not any(n.startswith("floor_") for k in keys for n in run.values[k]):
+            continue
+        methods.append(floor_of(m))
+        for s, _, e in keys:
+            values[(s, floor_of(m), e)] = {"correspondence_" + n[len("floor_"):]: v
+                                           for n, v in run.values[(s, m, e)].items() if n.startswith("floor_")}
+            paths[(s, floor_of(m), e)] = run.paths[(s, m, e)]
+    return Run(list(run.subjects), methods, list(run.expressions), values, paths)
 
 
 @dataclass

@@ -65,7 +65,7 @@ from gpja.report.runs import (
     means,
     metric_family,
     subject_stats,
-    with_floor,
+    with_floors,
 )
 from gpja.report.table_model import (
     BETTER,
@@ -80,7 +80,8 @@ from gpja.report.table_model import (
     plural,
     subject_label,
 )
-from gpja.report.tables_truth import correspondence_regions_table, floor_note, position_regions_table, texture_table
+from gpja.report.tables_truth import (correspondence_regions_table, floor_note, position_regions_table, row_label,
+                                     texture_table)
 from gpja.report.timing import timing_table
 from gpja.results import Layout
 
@@ -251,10 +252,10 @@ def correspondence_table(run: Run) -> Table:
     if not any(names[0] in v for v in run.values.values()):
         first = next(iter(run.paths.values()))
         raise InputError(first, "no correspondence scores in any metrics JSON (they need synthetic ground truth)")
-    run = with_floor(run)
+    run = with_floors(run)
     stats = subject_stats(run, run.methods, names)
     lines = run.subjects + [AVERAGE]
-    rows = [[subject_label(s), method_label(m)] + [metric_cell(stats[(s, m)][n], n) for n in names]
+    rows = [[subject_label(s), row_label(m)] + [metric_cell(stats[(s, m)][n], n) for n in names]
             for s in lines for m in run.methods]
     block = Block(headers=["Subject", "Method"] + [header(n) for n in names], rows=rows, label_columns=2,
                   rules={i * len(run.methods) for i in range(1, len(lines))})

@@ -4,8 +4,8 @@ quality against the generator's albedo.
 - ``correspondence_regions``: per subject (and the ``Average`` of the subject means) and method, the
   median and mean correspondence error (mm) of each facial region (:mod:`gpja.metrics.regions`), means
   over the expressions of the per-expression values in ``correspondence.regions`` of the metrics JSONs.
-  Both correspondence tables end each subject with the floor's row (``correspondence.floor``: the least any
-  registration can score; :func:`gpja.report.runs.with_floor`).
+  Both correspondence tables give each method's floor a row under it (``correspondence.floor``: the least its
+  scored vertices can score; :func:`gpja.report.runs.with_floors`).
 - ``position_regions``: the same from the ground truth's side (``correspondence.position``: the distance from
   each registered vertex to where the expression put its material, which also counts the vertices that left
   the scan), with the overall median, mean and 95th percentile first.
@@ -24,7 +24,7 @@ from gpja.metrics.texture_quality import QUALITY_FILE
 from gpja.report.runs import (
     AVERAGE,
     CORRESPONDENCE_KEYS,
-    FLOOR,
+    FLOOR_SUFFIX,
     POSITION_NAMES,
     POSITION_REGION_NAMES,
     REGION_KEYS,
@@ -35,23 +35,30 @@ from gpja.report.runs import (
     read_required_json,
     region_name,
     subject_stats,
-    with_floor,
+    floor_label,
+    with_floors,
 )
 from gpja.report.table_model import DASH, Block, Cell, Table, header, metric_cell, subject_label
 from gpja.results import Layout
 
 #: Flat metric of each per-region key (digits and headers as the correspondence table's).
 REGION_METRIC = {"median_mm": "correspondence_median_mm", "mean_mm": "correspondence_mean_mm"}
-#: What the correspondence tables' floor row is (gpja.report.runs.floor_run).
-FLOOR_NOTE = ("Floor (hidden material): the least any registration can score (gpja/metrics/correspondence.py): "
-              "every template vertex where the expression carries its material or, where that material is hidden "
-              "(an eyeball under a closed lid, the inner lips of a closed mouth), on the nearest material that is "
-              "shown. No vertex scores below its floor.")
+#: What the correspondence tables' floor rows are (gpja.report.runs.with_floors).
+FLOOR_NOTE = ("A method's floor: the least its scored vertices can score (gpja/metrics/correspondence.py), each at "
+              "the rest-space distance from its material to the nearest material the expression shows: 0 where the "
+              "material is visible, more where it is hidden (an eyeball under a closed lid, the inner lips of a "
+              "closed mouth). No vertex scores below its floor; a method that leaves hidden material off the scan "
+              "is not scored on it and has a lower floor.")
 
 
 def floor_note(run: Run) -> list[str]:
-    """The floor row's note when ``run`` has that row (:func:`gpja.report.runs.with_floor`)."""
-    return [FLOOR_NOTE] if FLOOR in run.methods else []
+    """The floor rows' note when ``run`` has them (:func:`gpja.report.runs.with_floors`)."""
+    return [FLOOR_NOTE] if any(m.endswith(FLOOR_SUFFIX) for m in run.methods) else []
+
+
+def row_label(name: str) -> str:
+    """A table row's method label: the method's, or ``GPJA floor`` for its floor row."""
+    return floor_label(name) or method_label(name)
 
 
 def correspondence_regions_table(run: Run) -> Table:
@@ -61,7 +68,7 @@ def correspondence_regions_table(run: Run) -> Table:
         first = next(iter(run.paths.values()))
         raise InputError(first, "no per-region correspondence scores in any metrics JSON (they need the synthetic "
                                 "ground truth's landmarks_rest)")
-    run = with_floor(run)
+    run = with_floors(run)
     columns = [(region_name(r, k), REGION_METRIC[k]) for r in REGIONS for k in REGION_KEYS]
     stats, lines, block = score_block(run, columns, [(REGION_LABELS[r], len(REGION_KEYS)) for r in REGIONS])
     csv_header = ["subject", "method", "region", "expressions", *REGION_KEYS]
@@ -109,7 +116,7 @@ def score_block(run: Run, columns: list[tuple[str, str]], groups: list[tuple[str
     Returns the statistics (:func:`gpja.report.runs.subject_stats`), the row subjects and the block."""
     stats = subject_stats(run, run.methods, [n for n, _ in columns])
     lines = run.subjects + [AVERAGE]
-    rows = [[subject_label(s), method_label(m)] + [metric_cell(stats[(s, m)][n], kind) for n, kind in columns]
+    rows = [[subject_label(s), row_label(m)] + [metric_cell(stats[(s, m)][n], kind) for n, kind in columns]
             for s in lines for m in run.methods]
     block = Block(headers=["Subject", "Method"] + [header(kind) for _, kind in columns], rows=rows, label_columns=2,
                   groups=groups, rules={i * len(run.methods) for i in range(1, len(lines))})

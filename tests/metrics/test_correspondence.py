@@ -173,9 +173,12 @@ def test_floor_is_the_distance_to_the_nearest_material_shown():
     floor = out["floor"]
     assert floor["n_used"] == 4 and floor["median_mm"] == pytest.approx(4.0, abs=CORRESPONDENCE_EXACT_MM)
     assert floor["mean_mm"] == pytest.approx(7.0, abs=CORRESPONDENCE_EXACT_MM)
-    # the floor is the template's and the ground truth's: the same for any registration
-    moved = correspondence_error(best + [[3.0, 1.0, 0.0]], P, *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION])
+    # a vertex's floor is the template's and the ground truth's, the same for any registration; the statistics
+    # are over the scored vertices: a hidden vertex that leaves the scan (2.5 mm above it) takes its floor along
+    moved = correspondence_error(best + [[0.0, 0.0, 0.0], [0.0, 0.0, 2.5], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], P,
+                                 *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION])
     np.testing.assert_array_equal(moved["vertex_floor_mm"], out["vertex_floor_mm"])
+    assert moved["floor"]["n_used"] == 3 and moved["floor"]["max_mm"] == pytest.approx(8.0, abs=CORRESPONDENCE_EXACT_MM)
 
 
 def test_no_registration_scores_below_its_floor():
@@ -188,6 +191,9 @@ def test_no_registration_scores_below_its_floor():
         used = out["vertex_used"]
         assert used.sum() > 100
         assert (out["vertex_error_mm"][used] >= out["vertex_floor_mm"][used] - CORRESPONDENCE_EXACT_MM).all()
+        # over the same vertices, so no statistic of the score is below the floor's
+        for key in ("mean_mm", "median_mm", "p95_mm"):
+            assert out[key] >= out["floor"][key] - CORRESPONDENCE_EXACT_MM
 
 
 # --- files --------------------------------------------------------------------------------

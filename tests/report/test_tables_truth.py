@@ -74,30 +74,32 @@ def add_floor(results, subject, method, expression, median: float):
     path.write_text(json.dumps(record))
 
 
-def test_the_floor_is_a_row_of_the_correspondence_tables_read_from_any_method(run_dir):
+def test_each_method_s_floor_is_a_row_under_it_in_the_correspondence_tables(run_dir):
     for s in ("S01", "S02"):
         for e in (E1, E2):
             add_regions(run_dir, s, "gpja", e, 1.0)
             add_regions(run_dir, s, "nicp", e, 0.5)
-            add_floor(run_dir, s, "gpja" if e == E1 else "nicp", e, 0.2 if e == E1 else 0.6)
+            add_floor(run_dir, s, "gpja", e, 0.2 if e == E1 else 0.6)  # nicp's records have none (older metrics)
     run = load_run(run_dir, ["S01", "S02"], ["gpja", "nicp"], [E1, E2])
     regions = {(r["subject"], r["method"], r["region"]): r for r in read_csv_rows(to_csv(correspondence_regions_table(run)))}
-    assert float(regions[("S01", "floor", "eyes")]["median_mm"]) == pytest.approx(0.4 + REGIONS.index("eyes"))
-    assert regions[("Average", "floor", "mouth")]["expressions"] == "4"
+    assert float(regions[("S01", "gpja:floor", "eyes")]["median_mm"]) == pytest.approx(0.4 + REGIONS.index("eyes"))
+    assert regions[("Average", "gpja:floor", "mouth")]["expressions"] == "4"
+    assert not any(m == "nicp:floor" for _, m, _ in regions)
     md = to_markdown(T.correspondence_table(run))
-    assert md_row(md, "Average")[0] == "GPJA" and "Floor (hidden material)" in md
-    assert [line for line in md.splitlines() if "Floor (hidden material) |" in line][-1].endswith(
-        "| 1.400 | 0.400 | 4.400 |")  # mean, median, p95 over E1 (gpja's record) and E2 (nicp's)
+    labels = [line.split(" | ")[1] for line in md.splitlines() if line.startswith("| Average")]
+    assert labels == ["GPJA", "GPJA floor", "NICP"]  # the floor right under its method
+    assert [line for line in md.splitlines() if line.startswith("| Average | GPJA floor")] == [
+        "| Average | GPJA floor | 1.400 | 0.400 | 4.400 |"]  # mean, median, p95: (E1 + E2) / 2
     assert "No vertex scores below its floor" in md
     # metrics written before the floor: no row, no note; the regression check never reads the floor
-    for e in (E1, E2):
-        for m in ("gpja", "nicp"):
-            path = Layout(run_dir).metrics("S01", m, e)
+    for s in ("S01", "S02"):
+        for e in (E1, E2):
+            path = Layout(run_dir).metrics(s, "gpja", e)
             record = json.loads(path.read_text())
-            record["correspondence"].pop("floor", None)
+            del record["correspondence"]["floor"]
             path.write_text(json.dumps(record))
-    md = to_markdown(T.correspondence_table(load_run(run_dir, ["S01"], ["gpja", "nicp"], [E1, E2])))
-    assert "Floor" not in md and "below its floor" not in md
+    md = to_markdown(T.correspondence_table(load_run(run_dir, ["S01", "S02"], ["gpja", "nicp"], [E1, E2])))
+    assert "floor" not in md
 
 
 def write_oracle(results, subject, expression, psnr: float):
