@@ -220,6 +220,10 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         assert 0.9 < metrics["geometry"]["normal_consistency"] <= 1.0
         assert metrics["photometric"]["psnr"] > 15.0
         assert metrics["correspondence"]["fraction_used"] > 0.3
+        # the floor: over the score's own vertices, so none of the score's statistics is below it
+        floor = metrics["correspondence"]["floor"]
+        assert floor["n_used"] == metrics["correspondence"]["n_used"]
+        assert all(floor[k] <= metrics["correspondence"][k] for k in ("mean_mm", "median_mm", "p95_mm"))
         nicp = json.loads((work / f"results/{cfg['dataset']}/S01/nicp/metrics/{expression}.json").read_text())
         assert nicp["method"] == "nicp" and nicp["photometric"]["psnr"] > 15.0  # NICP keeps the template's UVs
         details = work / f"results/{cfg['dataset']}/S01/gpja/metrics/{expression}"
@@ -242,6 +246,7 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
     for k in range(len(gpja_cfg["lambdas"])):
         expected += [f"flow{k + 1}"] * (0 < k < flow_levels) + [f"level{k + 1}"]
     assert [r["stage"] for r in stages] == expected
+    assert all(r["position"]["median_mm"] >= 0.0 and set(r["floor_regions"]) == set(r["regions"]) for r in stages)
     quality = json.loads((template_dir / "texture_quality.json").read_text())
     assert quality["observed"]["psnr"] > 15.0 and (template_dir / "texture_error.png").is_file()
     for expression in cfg["expressions"]:
@@ -256,6 +261,7 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         for suffix in ("csv", "md", "tex"):
             assert (tables / f"{name}.{suffix}").is_file(), f"{name}.{suffix}"
     assert "Oracle (ground truth)" in (tables / "photometric.md").read_text()
+    assert "GPJA floor" in (tables / "correspondence.md").read_text()
     figures = work / f"results/{cfg['dataset']}/figures"
     for kind in ("template_stages", "geometric_errors", "correspondence_errors", "photometric_errors", "closeups",
                  "convergence", "ablation_mask", "registration_stages"):

@@ -3,7 +3,8 @@
 ``gpja register --stages-dir`` saves the mesh it starts from, the mesh after the warm-up and after each
 level (:func:`gpja.results.stage_writer`). This module scores each of them as the final mesh
 is scored: the dense correspondence error against the ground truth (:mod:`gpja.metrics.correspondence`,
-with its regions) and, in the most frontal view, the render with the shared texture against the
+with its regions, its floor and the position error, which tells a lid that moved from an eyeball laid over
+it) and, in the most frontal view, the render with the shared texture against the
 reference (PSNR over the scan's pixels, and the colour-mapped L1 image of the photometric figures).
 The figure ``registration_stages`` draws them.
 """
@@ -40,7 +41,9 @@ def score_stages(stages_dir: str | Path, template_dir: str | Path, source: DataS
         render: a backend's ``render_views``; None = the CPU renderer.
     Returns:
         ``{"subject", "expression", "view", "stages": [{"stage", "median_mm", "mean_mm", "p95_mm",
-        "regions": {region: median_mm}, "psnr"}]}`` (also written to ``out_path``). The ``.npz`` holds
+        "regions": {region: median_mm}, "floor_regions": {region: median_mm}, "position": {"median_mm", "mean_mm",
+        "regions": {region: median_mm}}, "psnr"}]}`` (also written to ``out_path``): the correspondence error, its
+        floor and the position error (:mod:`gpja.metrics.correspondence`). The ``.npz`` holds
         ``stage_names`` (S,), ``vertex_error_mm`` (S, n_template) float32 (NaN where unscored) and ``l1``
         (S, H, W, 3) uint8 colour-mapped L1 images of the view.
     """
@@ -65,8 +68,12 @@ def score_stages(stages_dir: str | Path, template_dir: str | Path, source: DataS
         names.append(name)
         errors.append(c["vertex_error_mm"].astype(np.float32))
         l1_images.append(np.round(l1_error_image(image, reference, mask) * 255).astype(np.uint8))
+        position, floor = c["position"], c["floor"]
         rows.append({"stage": name, "median_mm": c["median_mm"], "mean_mm": c["mean_mm"], "p95_mm": c["p95_mm"],
                      "regions": {r: s["median_mm"] for r, s in (c.get("regions") or {}).items()},
+                     "floor_regions": {r: s["median_mm"] for r, s in (floor.get("regions") or {}).items()},
+                     "position": {"median_mm": position["median_mm"], "mean_mm": position["mean_mm"],
+                                  "regions": {r: s["median_mm"] for r, s in (position.get("regions") or {}).items()}},
                      "psnr": masked_psnr(image, reference, mask)})
     out = {"subject": subject, "expression": expression, "view": data.views[view].name, "stages": rows,
            "region_names": list(REGIONS)}
