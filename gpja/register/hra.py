@@ -184,7 +184,7 @@ class _AlongSurface(torch.autograd.Function):
 def along_surface(V: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """``V`` unchanged, whose gradient reaches the vertices only along the surface.
 
-    Why (docs/experiments.md, "The colour constraint pushes the nose in"): with the estimated lighting the
+    Why (docs/experiments.md, "The nose slides"): with the estimated lighting the
     colour loss also has a gradient along the normals (on the template's nose it is along the normal at every
     vertex: the colour "wants" the nose smaller), which the depth constraint undoes along the view rays;
     the two steps do not cancel on a slope, and their sum slides the surface. Dropping the normal part

@@ -27,8 +27,10 @@ CORRESPONDENCE_NAMES = tuple(f"correspondence_{k}" for k in CORRESPONDENCE_KEYS)
 POSITION_NAMES = tuple(f"position_{k}" for k in CORRESPONDENCE_KEYS)
 #: The per-region correspondence scores the tables read (``correspondence.regions.{region}.{key}``).
 REGION_KEYS = ("median_mm", "mean_mm")
-#: The correspondence score's floor (``correspondence.floor``, :mod:`gpja.metrics.correspondence`): the same keys.
-FLOOR_NAMES = tuple(f"floor_{k}" for k in CORRESPONDENCE_KEYS)
+#: The prefix of the correspondence score's floor (``correspondence.floor``, :mod:`gpja.metrics.correspondence`) in
+#: the flat names: ``floor_median_mm``, ``floor_{region}_median_mm``, ...
+FLOOR_SCORE = "floor"
+FLOOR_PREFIX = f"{FLOOR_SCORE}_"
 #: What a method's floor row is called after the method (``gpja:floor``; :func:`with_floors`).
 FLOOR_SUFFIX = ":floor"
 
@@ -118,8 +120,8 @@ def flat_metrics(record: dict, regions: bool = False) -> dict[str, float]:
         position = correspondence.get("position") or {}  # metrics JSONs written before it have none
         values.update({f"position_{k}": float(position[k]) for k in CORRESPONDENCE_KEYS if is_number(position.get(k))})
         floor = (correspondence.get("floor") or {}) if regions else {}  # metrics JSONs written before it have none
-        values.update({f"floor_{k}": float(floor[k]) for k in CORRESPONDENCE_KEYS if is_number(floor.get(k))})
-        scored = (("correspondence", correspondence), ("position", position), ("floor", floor))
+        values.update({FLOOR_PREFIX + k: float(floor[k]) for k in CORRESPONDENCE_KEYS if is_number(floor.get(k))})
+        scored = (("correspondence", correspondence), ("position", position), (FLOOR_SCORE, floor))
         for score, scores in scored if regions else ():
             for region, stats in (scores.get("regions") or {}).items():
                 values.update({region_name(region, k, score): float(stats[k])
@@ -159,12 +161,12 @@ def with_floors(run: Run) -> Run:
     for m in run.methods:
         methods.append(m)
         keys = [(s, m, e) for s in run.subjects for e in run.expressions]
-        if not any(n.startswith("floor_") for k in keys for n in run.values[k]):
+        if not any(n.startswith(FLOOR_PREFIX) for k in keys for n in run.values[k]):
             continue
         methods.append(floor_of(m))
         for s, _, e in keys:
-            values[(s, floor_of(m), e)] = {"correspondence_" + n[len("floor_"):]: v
-                                           for n, v in run.values[(s, m, e)].items() if n.startswith("floor_")}
+            values[(s, floor_of(m), e)] = {"correspondence_" + n[len(FLOOR_PREFIX):]: v
+                                           for n, v in run.values[(s, m, e)].items() if n.startswith(FLOOR_PREFIX)}
             paths[(s, floor_of(m), e)] = run.paths[(s, m, e)]
     return Run(list(run.subjects), methods, list(run.expressions), values, paths)
 

@@ -31,11 +31,11 @@ from gpja.report.runs import (
     REGION_NAMES,
     Run,
     count_values,
+    floor_label,
     mean_or_none,
     read_required_json,
     region_name,
     subject_stats,
-    floor_label,
     with_floors,
 )
 from gpja.report.table_model import DASH, Block, Cell, Table, header, metric_cell, subject_label
