@@ -105,3 +105,9 @@ TEMPLATE_ALBEDO_UP_TO_SCALE = 0.01
 #: Mean change of an (already exact) fused sphere texture by 30 refinement steps of lr 0.01 (measured 0.0035),
 #: [0, 1] units.
 TEMPLATE_REFINE_CHANGE = 0.01
+
+# --- registration, end to end ---
+#: Median error (mm) of the lower lip of a closed mouth registered from the mouth-open template at CI size
+#: (tests/test_open_to_closed.py): the default measured 1.4-2.6 mm on seeds 0-2, the paper's schedule 27-38 mm;
+#: two 256^2 pixels (~2 mm each), far below the open mouth's ~20 mm.
+LOWER_LIP_CLOSED_MM = 4.0
