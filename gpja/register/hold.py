@@ -1,4 +1,4 @@
-"""The tangential hold (beyond the paper, ``Schedule.hold_tangential``): what the warm-up left in place stays there.
+"""The tangential hold (beyond the paper, ``Schedule.hold_tangential``): what the first phase left in place stays there.
 
 Measured on the synthetic benchmark (docs/experiments.md, "Issue 15: the tangential hold"): most of
 a face does not move between two expressions (the template itself, left unmoved, scores a median
@@ -19,8 +19,11 @@ The correction is applied to the LargeSteps variable as ``u += (I + lambda L) dx
 move by exactly ``dx``. New vertices of a refinement inherit the mean start, normal and weight of
 their edge's ends, as their position does.
 
-Without a warm-up (``warmup_iterations: 0``, or the colour constraint off) there is nothing to tell
-moving parts from still ones, and the hold stays off.
+Without a warm-up (``warmup_iterations: 0``, the default since the flow stage), the first flow stage
+plays its part: it moves the lips and the jaw onto the references' and leaves the rest nearly in
+place, so its displacement gives the weights. The hold then stays through the later flow stages (their
+slides of held parts are pulled back in the next level). With neither (the colour constraint off, or
+both at 0) there is nothing to tell moving parts from still ones, and the hold stays off.
 """
 from __future__ import annotations
 
@@ -76,7 +79,8 @@ class TangentialHold:
     @classmethod
     def after_warmup(cls, start: TexturedMesh, warmed: TexturedMesh, lam: float, rate: float,
                      moved_mm: tuple[float, float]) -> "TangentialHold":
-        """The hold of a registration that started at ``start`` and was at ``warmed`` after its warm-up."""
+        """The hold of a registration that started at ``start`` and was at ``warmed`` after its first phase
+        (the warm-up, or without one the first flow stage)."""
         normals = vertex_normals(torch.from_numpy(start.V), torch.from_numpy(start.F)).numpy()
         return cls(start.V.copy(), normals, hold_weights(start.V, warmed.V, start.F, lam, moved_mm), float(rate))
 

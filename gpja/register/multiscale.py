@@ -48,8 +48,9 @@ each constraint moves the surface by up to the learning rate whatever its
 units; the rotation then balances them as the paper intends.
 
 Tangential hold (beyond the paper, ``Schedule.hold_tangential``): during the
-levels, the vertices the warm-up did not move far are pulled back, by a small
-fraction per iteration, towards their starting positions along the surface
+levels, the vertices the warm-up (without one, the first flow stage) did not
+move far are pulled back, by a small fraction per iteration, towards their
+starting positions along the surface
 (not along the normal), so untextured parts (nose, neck) stop sliding after the
 jaw (``gpja.register.hold``).
 """
@@ -107,8 +108,9 @@ class Schedule:
             (beyond the paper; module docstring).
         hold_tangential: per level iteration, the fraction of a held vertex's tangential offset from its
             starting position that is removed (0 = off, the paper; beyond the paper, ``gpja.register.hold``).
-            Needs a warm-up, which tells what moves.
-        hold_moved_mm: (held, free): a vertex the warm-up moved at most ``held`` mm is held fully, one
+            Needs a warm-up or a flow stage: the first of them tells what moves.
+        hold_moved_mm: (held, free): a vertex the warm-up (without one, the first flow stage) moved at most
+            ``held`` mm is held fully, one
             it moved ``free`` mm or more not at all (linear between, then smoothed).
         flow_rounds: rounds of optical-flow matching (``gpja.register.flow``) before a level's descent
             (0 = none, the paper; beyond the paper). Only runs when the colour constraint is on.
@@ -244,9 +246,13 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     hold = None
     # the flow stage matches the render's colours: without the colour constraint there is none
     flow_levels = int(schedule.flow_levels) if schedule.flow_rounds and switches.color else 0
+    warmup = bool(schedule.warmup_iterations and switches.color)
     if flow_levels:
+        before_flow = mesh
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
-    if schedule.warmup_iterations and switches.color:
+        if schedule.hold_tangential > 0 and not warmup:  # the first flow stage tells what moves
+            hold = start_hold(before_flow, mesh, schedule, progress, "the flow stage")
+    if warmup:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
                                      warmup_switches(switches, schedule), schedule, 1, **common)
@@ -254,12 +260,9 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage("warmup", mesh)
         if schedule.hold_tangential > 0:
-            hold = TangentialHold.after_warmup(start_mesh, mesh, schedule.lambdas[0], schedule.hold_tangential,
-                                               tuple(schedule.hold_moved_mm))
-            progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
-                     f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in the warm-up)")
-    elif schedule.hold_tangential > 0:
-        progress("hold: off (no warm-up ran to tell moving parts from still ones)")
+            hold = start_hold(start_mesh, mesh, schedule, progress, "the warm-up")
+    elif schedule.hold_tangential > 0 and hold is None:
+        progress("hold: off (no warm-up or flow stage ran to tell moving parts from still ones)")
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
         start = time.perf_counter()
         if level > 0:
@@ -269,11 +272,9 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
                 mesh, hold = hold.refine(mesh, schedule.refine_factor)
         refine_s = time.perf_counter() - start
         if 0 < level < flow_levels:
+            # the hold stays: the next level's springs pull back what this stage slides in the held parts
             mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage,
                               f"flow{level + 1}")
-            if hold is not None:  # the hold's starting positions are per vertex: the flow moved them
-                progress("hold: off from here (the flow stage moved the held vertices)")
-                hold = None
         mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter, switches,
                                      schedule, schedule.pool(level), hold=hold, **common)
         entry["seconds"] = round(entry["seconds"] + refine_s, 3)
@@ -282,6 +283,17 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage(f"level{level + 1}", mesh)
     return mesh, log
+
+
+def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, progress: Callable[[str], None],
+               what: str) -> TangentialHold:
+    """The tangential hold (``gpja.register.hold``) of a registration that started at ``start`` and was at
+    ``moved`` after its first phase (``what``: the warm-up, or without one the first flow stage)."""
+    hold = TangentialHold.after_warmup(start, moved, schedule.lambdas[0], schedule.hold_tangential,
+                                       tuple(schedule.hold_moved_mm))
+    progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
+             f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in {what})")
+    return hold
 
 
 def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,

@@ -243,6 +243,32 @@ def test_flow_stages_run_before_the_first_levels_and_are_logged_and_saved():
     assert [lv["stage"] for lv in log.levels] == ["level"] * 3
 
 
+def test_without_a_warm_up_the_first_flow_stage_tells_the_hold_what_moves():
+    """The sphere's texture turned 16 degrees about +Y: the first flow stage moves the equator by
+    millimetres and the poles hardly; with ``hold_tangential`` and no warm-up its displacement weighs the
+    hold, which then stays through the second flow stage and pulls the poles' slide back."""
+    from tests.register.test_flow import FLOW_TURN_DEG, sphere_scene
+
+    template, texture, targets, _ = sphere_scene(FLOW_TURN_DEG, size=64)
+    kwargs = dict(texture=texture, mask_texture=torch.ones(4, 4, 1), progress=lambda m: None, progress_every=0)
+    common = dict(lambdas=(10.0, 5.0), iterations=(40, 40), refine_factor=1.5, lr_fraction=0.1, flow_rounds=1,
+                  flow_levels=2)
+    normal = template.V / np.linalg.norm(template.V, axis=1, keepdims=True)
+
+    def slide(result, where):
+        offset = result.V[: len(template.V)] - template.V
+        tangential = offset - (offset * normal).sum(1, keepdims=True) * normal
+        return float(np.linalg.norm(tangential[where], axis=1).mean())
+
+    polar, equator = np.abs(normal[:, 1]) > 0.95, np.abs(normal[:, 1]) < 0.3
+    free, _ = optimise(template, targets, Switches(), Schedule(**common), **kwargs)
+    held, log = optimise(template, targets, Switches(), Schedule(**common, hold_tangential=0.05), **kwargs)
+    assert [lv["stage"] for lv in log.levels] == ["flow", "level", "flow2", "level"]
+    assert all(0.0 < lv["hold"]["held_fraction"] < 1.0 for lv in log.levels if lv["stage"] == "level")
+    assert slide(held, polar) < 0.6 * slide(free, polar)  # measured: 1.45 -> 0.67 mm
+    assert slide(held, equator) > 0.7 * slide(free, equator)  # the turn still goes through: 8.0 -> 7.0 mm
+
+
 def test_flow_settings_are_checked():
     with pytest.raises(ValueError, match="flow_rounds"):
         Schedule(flow_rounds=-1)
