@@ -16,23 +16,19 @@ at least half the lower lip must be scored, so a lip left off the scan cannot pa
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from tests.test_project import ROOT, SNAKEMAKE, copy_workflow
+from tests.test_project import ROOT, SNAKEMAKE, copy_workflow, workflow_env
 from tests.tolerances import LOWER_LIP_CLOSED_MM
 
 SUBJECT = "S01"
 CLOSED = "1_neutral"
 DATASET = "synthetic-open-to-closed"
-#: Lower lip, correspondence / position medians (seed 0, docs/experiments.md): the default 1.39 / 1.84 mm,
-#: the paper's schedule 35.5 / 38.2 mm.
 METHODS = ("gpja", "gpja-paper")
 
 
@@ -58,9 +54,8 @@ def open_to_closed(tmp_path_factory) -> Path:
     work = copy_workflow(tmp_path_factory.mktemp("open_to_closed"))
     (work / "config/open_to_closed.yaml").write_text(yaml.safe_dump(open_to_closed_config(), sort_keys=False))
     targets = [f"results/{DATASET}/{SUBJECT}/{method}/metrics/{CLOSED}.json" for method in METHODS]
-    env = {**os.environ, "PATH": str(Path(sys.executable).parent) + ":" + os.environ["PATH"]}
     out = subprocess.run([*SNAKEMAKE, "--cores", "2", *targets, "--configfile", "config/open_to_closed.yaml"],
-                         cwd=work, capture_output=True, text=True, timeout=900, env=env)
+                         cwd=work, capture_output=True, text=True, timeout=900, env=workflow_env())
     assert out.returncode == 0, out.stderr[-3000:]
     return work
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -59,6 +60,11 @@ def test_schema_rejects_bad_config():
     cfg["synthetic"]["image_size"] = 8
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(cfg, schema)
+
+
+def workflow_env() -> dict:
+    """The environment for a workflow subprocess: this interpreter's bin first, so rules find ``gpja``."""
+    return {**os.environ, "PATH": str(Path(sys.executable).parent) + ":" + os.environ["PATH"]}
 
 
 def copy_workflow(dst: Path) -> Path:
@@ -188,10 +194,8 @@ def test_invalid_config_stops_before_any_rule(tmp_path):
 def test_ci_workflow_runs_end_to_end(tmp_path):
     """The real DAG on the CI configuration: synthesis, then every expression through the reader."""
     work = copy_workflow(tmp_path)
-    env_bin = str(Path(sys.executable).parent)
     out = subprocess.run([*SNAKEMAKE, "--cores", "2", "--configfile", "config/ci.yaml"], cwd=work,
-                         capture_output=True, text=True, timeout=900,
-                         env={**__import__("os").environ, "PATH": env_bin + ":" + __import__("os").environ["PATH"]})
+                         capture_output=True, text=True, timeout=900, env=workflow_env())
     assert out.returncode == 0, out.stderr[-3000:]
     cfg = yaml.safe_load((ROOT / "config/ci.yaml").read_text())
     for expression in cfg["expressions"]:

@@ -77,12 +77,12 @@ class TangentialHold:
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
-    def after_warmup(cls, start: TexturedMesh, warmed: TexturedMesh, lam: float, rate: float,
-                     moved_mm: tuple[float, float]) -> "TangentialHold":
-        """The hold of a registration that started at ``start`` and was at ``warmed`` after its first phase
+    def after_first_phase(cls, start: TexturedMesh, moved: TexturedMesh, lam: float, rate: float,
+                          moved_mm: tuple[float, float]) -> "TangentialHold":
+        """The hold of a registration that started at ``start`` and was at ``moved`` after its first phase
         (the warm-up, or without one the first flow stage)."""
         normals = vertex_normals(torch.from_numpy(start.V), torch.from_numpy(start.F)).numpy()
-        return cls(start.V.copy(), normals, hold_weights(start.V, warmed.V, start.F, lam, moved_mm), float(rate))
+        return cls(start.V.copy(), normals, hold_weights(start.V, moved.V, start.F, lam, moved_mm), float(rate))
 
     @property
     def held_fraction(self) -> float:

@@ -50,9 +50,8 @@ units; the rotation then balances them as the paper intends.
 Tangential hold (beyond the paper, ``Schedule.hold_tangential``): during the
 levels, the vertices the warm-up (without one, the first flow stage) did not
 move far are pulled back, by a small fraction per iteration, towards their
-starting positions along the surface
-(not along the normal), so untextured parts (nose, neck) stop sliding after the
-jaw (``gpja.register.hold``).
+starting positions along the surface (not along the normal), so untextured
+parts (nose, neck) stop sliding after the jaw (``gpja.register.hold``).
 """
 from __future__ import annotations
 
@@ -110,8 +109,8 @@ class Schedule:
             starting position that is removed (0 = off, the paper; beyond the paper, ``gpja.register.hold``).
             Needs a warm-up or a flow stage: the first of them tells what moves.
         hold_moved_mm: (held, free): a vertex the warm-up (without one, the first flow stage) moved at most
-            ``held`` mm is held fully, one
-            it moved ``free`` mm or more not at all (linear between, then smoothed).
+            ``held`` mm is held fully, one it moved ``free`` mm or more not at all (linear between, then
+            smoothed).
         flow_rounds: rounds of optical-flow matching (``gpja.register.flow``) before a level's descent
             (0 = none, the paper; beyond the paper). Only runs when the colour constraint is on.
         flow_levels: how many levels, from the first, start with those rounds.
@@ -289,8 +288,8 @@ def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, pro
                what: str) -> TangentialHold:
     """The tangential hold (``gpja.register.hold``) of a registration that started at ``start`` and was at
     ``moved`` after its first phase (``what``: the warm-up, or without one the first flow stage)."""
-    hold = TangentialHold.after_warmup(start, moved, schedule.lambdas[0], schedule.hold_tangential,
-                                       tuple(schedule.hold_moved_mm))
+    hold = TangentialHold.after_first_phase(start, moved, schedule.lambdas[0], schedule.hold_tangential,
+                                            tuple(schedule.hold_moved_mm))
     progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
              f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in {what})")
     return hold
