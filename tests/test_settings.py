@@ -32,7 +32,7 @@ NON_DEFAULT = {
                               "fusion_occlusion_mm": 2.0, "fusion_robust_iterations": 0, "fusion_robust_scale": 0.1,
                               "fusion_off_scan_weight": 0.5, "fusion_scan_normals": False, "fusion_normal_blur_px": 2.0,
                               "texture_refine_iterations": 10,
-                              "texture_refine_smoothness": 2.0},
+                              "texture_refine_smoothness": 2.0, "mouth_mask": "interior", "mouth_mask_dark": 0.3},
     "registration.gpja": {"lambdas": [40, 30, 20, 10], "iterations": [1, 2, 3, 4], "refine_factor": 3.0,
                           "lr_fraction": 0.7, "lr_decay": 0.2, "color_pool": [4, 2, 1, 1], "warmup_iterations": 5,
                           "warmup_geometry": True, "optimizer_state": "per_constraint",

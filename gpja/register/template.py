@@ -12,7 +12,12 @@
    the colour constraint on the texture image (``texture_method: optimise``).
 4. The dense mesh is decimated with pymeshlab's texture-preserving quadric edge
    collapse to the coarse template, which keeps the same texture map.
-The mouth mask B is the bust's mouth-pocket chart in UV space.
+The mouth mask B marks the mouth interior in UV space. The paper draws it by hand on the
+template's texture; here it is the bust's mouth-socket charts (``mouth_mask: socket``, the default),
+or those without the texels that look like lips (``interior``, :func:`mask_mouth_interior`): the
+depth fit lays part of the socket onto the lower lip's inner face, and a mask over lip material lets
+the socket cover the target's lips at no colour cost (docs/experiments.md, "The mouth mask over the
+lips": it helps where the target shows the inner lip, not where a closed mouth hides it).
 """
 from __future__ import annotations
 
@@ -43,6 +48,10 @@ from gpja.settings import CONFIG_KEY, HIDDEN, from_section
 
 #: Texture methods: the fusion (beyond the paper; default) and the paper's gradient descent.
 TEXTURE_METHODS = ("fusion", "optimise")
+#: ``TemplateSettings.mouth_mask``: the whole socket charts (default) or their texels that do not look like lips.
+MOUTH_MASKS = ("socket", "interior")
+#: Rec. 709 luminance weights of linear RGB (the mouth mask's darkness test).
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 #: Lighting the texture's albedo is relative to (config ``registration.lighting``).
 LIGHTING_CHOICES = ("estimate", "uniform")
 #: After the lighting estimate, albedo and light are rescaled (they share one global scale) so that
@@ -73,6 +82,11 @@ class TemplateSettings:
         texture_refine_smoothness: weight of the refinement's total-variation prior on its correction.
         template_faces: face count of the decimated template (paper: ~16K vertices, ~32K faces);
             config key ``faces``.
+        mouth_mask: ``socket``: every texel of the bust's socket charts is masked (the default);
+            ``interior`` (beyond the paper, an automatic version of its hand-drawn mask): the socket charts'
+            texels that look like lips (as light as ``mouth_mask_dark`` x the observed skin's median
+            luminance, as red as the skin) are unmasked (:func:`mask_mouth_interior`).
+        mouth_mask_dark: that fraction (0, 1).
     """
 
     bust_edge_mm: float = 6.0
@@ -90,6 +104,8 @@ class TemplateSettings:
     texture_refine_iterations: int = 0
     texture_refine_smoothness: float = 0.5
     template_faces: int = field(default=32000, metadata={CONFIG_KEY: "faces"})
+    mouth_mask: str = "socket"
+    mouth_mask_dark: float = 0.5
 
     #: ``TemplateSettings.from_config(section, source)``: from ``registration.template``, see gpja.settings.
     from_config = classmethod(from_section)
@@ -105,6 +121,10 @@ class TemplateSettings:
                 raise ValueError(f"{key} must be >= 1, got {getattr(self, name)}")
         if not float(self.texture_lr) > 0:
             raise ValueError(f"texture_lr must be > 0, got {self.texture_lr}")
+        if self.mouth_mask not in MOUTH_MASKS:
+            raise ValueError(f"mouth_mask must be one of {', '.join(MOUTH_MASKS)}, got {self.mouth_mask!r}")
+        if not 0.0 < float(self.mouth_mask_dark) < 1.0:
+            raise ValueError(f"mouth_mask_dark must be in (0, 1), got {self.mouth_mask_dark}")
         if int(self.texture_refine_iterations) < 0 or float(self.texture_refine_smoothness) < 0:
             raise ValueError("texture_refine_iterations and texture_refine_smoothness must be >= 0, got "
                              f"{self.texture_refine_iterations} and {self.texture_refine_smoothness}")
@@ -354,6 +374,41 @@ def build_texture(mesh: TexturedMesh, targets: ExpressionTargets, settings: Temp
     return texture, observed, sh, log
 
 
+def mask_mouth_interior(socket: np.ndarray, texture: np.ndarray, observed: np.ndarray | None,
+                        dark_fraction: float) -> np.ndarray:
+    """The mouth mask of the socket's dark texels: the mouth interior as the texture shows it.
+
+    The bust's socket charts (:meth:`gpja.register.bust.Bust.mouth_mask`) are where the mouth interior
+    may be, not where it is: the depth-only fit pulls the socket's first rings onto whatever the scan
+    has behind the lip loop, which on a mouth-open scan is the lower lip's inner face. Masking those
+    texels takes lip material out of the colour constraint, so a registration can leave them over the
+    target's lips at no cost. Lips are as light as skin and redder; the interior is dark (the socket
+    receives little light, and the albedo division leaves that in), and teeth are light but grey. A
+    socket texel is unmasked when a view saw it, its luminance is at least ``dark_fraction`` x the median
+    luminance of the observed texels outside the socket (the skin), and its red chromaticity
+    ``R / (R + G + B)`` is at least the skin's median.
+
+    Args:
+        socket: (T, T) float32 mask of the socket charts (0 = socket, 1 elsewhere).
+        texture: (T, T, 3) float32 albedo in [0, 1] (linear).
+        observed: (T, T) bool, a view's colour makes the texel; None = every texel.
+        dark_fraction: in (0, 1).
+    Returns:
+        (T, T) float32 mask, 0 = mouth interior, 1 elsewhere (the socket's light texels included).
+    """
+    socket = np.asarray(socket) < 0.5
+    seen = np.ones(socket.shape, dtype=bool) if observed is None else np.asarray(observed, dtype=bool)
+    luminance = np.asarray(texture, dtype=np.float64)[..., :3] @ LUMINANCE
+    skin = seen & ~socket
+    if not skin.any():  # nothing to compare with: keep the socket charts
+        return np.where(socket, 0.0, 1.0).astype(np.float32)
+    rgb = np.asarray(texture, dtype=np.float64)[..., :3]
+    red = rgb[..., 0] / np.maximum(rgb.sum(axis=-1), 1e-12)
+    lip = (seen & (luminance >= float(dark_fraction) * float(np.median(luminance[skin])))
+           & (red >= float(np.median(red[skin]))))
+    return np.where(socket & ~lip, 0.0, 1.0).astype(np.float32)
+
+
 def create_template(scan_V: np.ndarray, targets: ExpressionTargets, settings: TemplateSettings,
                     progress: Callable[[str], None] = print, render: Callable | None = None,
                     lighting: str = "estimate") -> Template:
@@ -388,4 +443,14 @@ def create_template(scan_V: np.ndarray, targets: ExpressionTargets, settings: Te
                                                   "decimate": time.perf_counter() - t_tex},
            "vertices": {k: int(len(m.V)) for k, m in stages.items()}, "texture": tex_log,
            "lighting": np.asarray(sh).tolist(), "lighting_source": source}
-    return Template(coarse, bust.mouth_mask(texture.shape[0]), stages, log, observed, np.asarray(sh, np.float64), source)
+    mask = bust.mouth_mask(texture.shape[0])
+    if settings.mouth_mask == "interior":
+        socket_texels = int((mask < 0.5).sum())
+        mask = mask_mouth_interior(mask, texture, observed, settings.mouth_mask_dark)
+        log["mouth_mask"] = {"kind": "interior", "socket_texels": socket_texels,
+                             "masked_texels": int((mask < 0.5).sum())}
+        progress(f"template: mouth mask: {log['mouth_mask']['masked_texels'] / max(socket_texels, 1):.0%} of the "
+                 "socket's texels are dark (interior), the rest is unmasked")
+    else:
+        log["mouth_mask"] = {"kind": "socket", "socket_texels": int((mask < 0.5).sum())}
+    return Template(coarse, mask, stages, log, observed, np.asarray(sh, np.float64), source)

@@ -8,7 +8,7 @@ from gpja.register.hra import ExpressionTargets
 from gpja.register.multiscale import Schedule
 from gpja.register.remesh import refine_by_factor
 from gpja.register.template import (TemplateSettings, build_texture, create_template, decimate_with_texture,
-                                    reconstruct_texture)
+                                    LUMINANCE, mask_mouth_interior, reconstruct_texture)
 from gpja.render import Topology, render_scan_targets, render_views
 from tests.render.test_passes import surface_distance, tetrahedral_cameras
 from tests.register.test_remesh import seamed_sphere
@@ -142,6 +142,45 @@ def test_written_template_has_its_observed_texels_and_lighting(tmp_path, lit_sph
     assert read_json(tmp_path / "lighting.json")["source"] == "estimated"
 
 
+def socket_texture():
+    """A 4x6 texture: skin left, a socket (columns 3-5) of lip, interior, one tooth and one unobserved lip texel."""
+    texture = np.full((4, 6, 3), 0.4, dtype=np.float32)
+    texture[:, :3] = (0.5, 0.4, 0.3)  # skin: luminance 0.41, red chromaticity 0.42
+    texture[:, 3:] = (0.5, 0.25, 0.2)  # lips: luminance 0.30, red 0.53
+    texture[1:3, 4:] = (0.05, 0.03, 0.03)  # the cavity: luminance 0.04
+    texture[3, 3] = (0.8, 0.8, 0.8)  # a tooth: light but grey (red 0.33)
+    socket = np.ones((4, 6), dtype=np.float32)
+    socket[:, 3:] = 0.0
+    observed = np.ones((4, 6), dtype=bool)
+    observed[0, 5] = False
+    return socket, texture, observed
+
+
+def test_the_mouth_mask_keeps_the_sockets_dark_and_unseen_texels_only():
+    socket, texture, observed = socket_texture()
+    mask = mask_mouth_interior(socket, texture, observed, 0.5)  # luminance threshold 0.5 x 0.41
+    expected = np.ones((4, 6), dtype=np.float32)
+    expected[1:3, 4:] = 0.0  # the cavity
+    expected[3, 3] = 0.0  # the tooth
+    expected[0, 5] = 0.0  # no view saw it
+    np.testing.assert_array_equal(mask, expected)
+    # a threshold above the lips' luminance masks them again: the whole socket
+    np.testing.assert_array_equal(mask_mouth_interior(socket, texture, observed, 0.9), socket)
+    # dark skin (luminance 0.05): the cavity is not dark against it, and is unmasked too
+    dark_skin = texture.copy()
+    dark_skin[:, :3] = (0.06, 0.05, 0.04)
+    assert mask_mouth_interior(socket, dark_skin, observed, 0.5)[:, 3:].sum() == 10
+    # nothing observed outside the socket: no skin to compare with, the socket charts stay
+    np.testing.assert_array_equal(mask_mouth_interior(socket, texture, socket < 0.5, 0.5), socket)
+
+
+def test_the_mouth_mask_setting_is_checked():
+    with pytest.raises(ValueError, match="mouth_mask must be one of"):
+        TemplateSettings(mouth_mask="lips")
+    with pytest.raises(ValueError, match="mouth_mask_dark"):
+        TemplateSettings(mouth_mask_dark=1.0)
+
+
 @pytest.mark.slow
 def test_create_template_on_a_synthetic_subject(tmp_path):
     from gpja.data.facescape import load_expression
@@ -157,7 +196,7 @@ def test_create_template_on_a_synthetic_subject(tmp_path):
     sh = torch.tensor(read_npz(tmp_path / "g/S01" / f"{e}.npz")["sh"], dtype=torch.float32)
     targets = ExpressionTargets(data.cameras, torch.tensor(np.stack(data.images)), t["depth"], t["normal"], t["coverage"], sh)
     settings = TemplateSettings(bust_edge_mm=8.0, schedule=Schedule(lambdas=(200.0, 120.0), iterations=(90, 90)),
-                                texture_size=128, texture_iterations=60, template_faces=6000)
+                                texture_size=128, texture_iterations=60, template_faces=6000, mouth_mask="interior")
     template = create_template(data.scan.V, targets, settings, progress=lambda m: None)
     bust, fitted = template.stages["bust"], template.stages["fitted"]
     before = np.median(surface_distance(data.scan.V, bust.V, bust.F))
@@ -169,3 +208,8 @@ def test_create_template_on_a_synthetic_subject(tmp_path):
     assert template.observed.shape == (size, size) and 0.2 < template.observed.mean() < 1
     assert template.lighting.shape == (9, 3) and template.lighting_source == "estimated"
     assert template.log["lighting"] == template.lighting.tolist()
+    # the interior mask: within the socket (at 96 px no lip lands on it: all of it stays), dark texels only
+    masked = template.log["mouth_mask"]
+    assert masked["kind"] == "interior" and 0 < masked["masked_texels"] <= masked["socket_texels"]
+    luminance = template.mesh.texture @ LUMINANCE
+    assert np.median(luminance[template.mouth_mask < 0.5]) < 0.5 * np.median(luminance[template.mouth_mask > 0.5])
