@@ -38,6 +38,8 @@ class Method:
         entry: ``"module:function"`` that runs a baseline (kind ``baseline`` only).
         schedule: the ``registration`` config section a GPJA registration takes its schedule from
             (``gpja``; ``paper`` for the paper's own schedule, ``no_flow`` for GPJA without the flow stage).
+        overrides: ``(key, value)`` pairs that replace the section's values (``gpja-no_hold``: GPJA's own
+            schedule with the tangential hold off), so a variant that differs in one setting names only it.
     """
 
     name: str
@@ -46,6 +48,7 @@ class Method:
     without: tuple[str, ...] = ()
     entry: str | None = None
     schedule: str = "gpja"
+    overrides: tuple[tuple[str, object], ...] = ()
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -79,6 +82,11 @@ class Method:
         latex = " ".join(rf"w/o $\mathcal{{L}}_{{{c}}}$" if c != "mask" else "w/o mask" for c in self.without)
         return (text, latex)
 
+    def schedule_settings(self, registration: dict) -> dict:
+        """The settings of ``gpja register`` for this method: its section of the ``registration`` config with
+        :attr:`overrides` applied."""
+        return {**registration[self.schedule], **dict(self.overrides)}
+
     def run_function(self) -> Callable:
         """The baseline's ``run_baseline`` function (imported on demand)."""
         if self.entry is None:
@@ -98,6 +106,8 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     *(_ablation(c) for c in CONSTRAINTS),
     # GPJA before the flow stage (the unmasked-colour warm-up instead): what the flow stage buys
     Method("gpja-no_flow", "GPJA w/o flow (warm-up)", "ablation", schedule="no_flow"),
+    # GPJA without the tangential hold (and its scan gate): what the hold buys
+    Method("gpja-no_hold", "GPJA w/o hold", "ablation", overrides=(("hold_tangential", 0.0),)),
     # the paper's method as published (no warm-up, one Adam, from the template): what each departure buys
     Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),

@@ -24,7 +24,7 @@ def toy_baseline(template_dir, source, subject, expression, output, section, tem
 def test_registry_names_labels_and_switches():
     assert M.names("gpja") == ["gpja"]
     assert M.names("ablation") == ["gpja-no_normal", "gpja-no_depth", "gpja-no_color", "gpja-no_mask", "gpja-no_flow",
-                                   "gpja-paper"]
+                                   "gpja-no_hold", "gpja-paper"]
     assert M.names("baseline") == ["nicp"]
     assert [M.label(m) for m in ("gpja", "nicp", "gpja-no_mask", "nphm")] == ["GPJA", "NICP", "GPJA w/o mask", "nphm"]
     assert M.method("gpja-no_depth").without == ("depth",) and M.method("gpja").without == ()
@@ -38,6 +38,14 @@ def test_registry_names_labels_and_switches():
     assert not M.method("nicp").follows_start
     no_flow = M.method("gpja-no_flow")  # the warm-up instead of the flow stage: its own section, GPJA's start
     assert no_flow.without == () and no_flow.schedule == "no_flow" and no_flow.follows_start
+    # GPJA's own section with the hold off: only the override differs
+    registration = {"gpja": {"lambdas": [1.0], "hold_tangential": 0.01, "hold_gap_mm": [0.5, 2.0]}, "paper": {"lambdas": [2.0]}}
+    no_hold = M.method("gpja-no_hold")
+    assert no_hold.follows_start and no_hold.ablation_label == "GPJA w/o hold"
+    assert no_hold.schedule_settings(registration) == {"lambdas": [1.0], "hold_tangential": 0.0, "hold_gap_mm": [0.5, 2.0]}
+    assert registration["gpja"]["hold_tangential"] == 0.01  # the config is not changed
+    assert M.method("gpja").schedule_settings(registration) == registration["gpja"]
+    assert paper.schedule_settings(registration) == {"lambdas": [2.0]}
 
 
 @pytest.mark.parametrize("change, key", [

@@ -24,6 +24,12 @@ plays its part: it moves the lips and the jaw onto the references' and leaves th
 place, so its displacement gives the weights. The hold then stays through the later flow stages (their
 slides of held parts are pulled back in the next level). With neither (the colour constraint off, or
 both at 0) there is nothing to tell moving parts from still ones, and the hold stays off.
+
+The first phase's motion under-reports what an expression moves: cheeks and a chin it hardly moved
+may still have millimetres to go. With ``hold_gap_mm`` the target's scan says so, without the
+ground truth: per vertex of the starting surface, its gap to the scan as the views see it
+(:func:`scan_gap`), and the weight is multiplied by a second ramp, 1 at or below ``held`` mm, 0 at
+or beyond ``free`` mm (:func:`gap_factor`).
 """
 from __future__ import annotations
 
@@ -33,6 +39,7 @@ import numpy as np
 import torch
 
 from gpja.mesh import TexturedMesh
+from gpja.register.hra import ExpressionTargets
 from gpja.register.largesteps import SmoothingSolver
 from gpja.register.laplacian import system_matrix
 from gpja.register.remesh import refine_carrying
@@ -59,6 +66,55 @@ def hold_weights(start: np.ndarray, moved: np.ndarray, F: np.ndarray, lam: float
     return np.clip(raw, 0.0, 1.0)
 
 
+#: A view counts in :func:`scan_gap` where the surface faces it at least this much (cos of normal and
+#: view direction) and the scan covers the whole pixel (coverage at least ``SCAN_GAP_COVERAGE``).
+SCAN_GAP_MIN_COS, SCAN_GAP_COVERAGE = 0.3, 0.999
+
+
+def scan_gap(V: np.ndarray, F: np.ndarray, targets: ExpressionTargets) -> np.ndarray:
+    """Per-vertex gap (mm) between a surface and the target's scan, as the views see it.
+
+    In every view that sees the vertex (inside the image, facing the camera by at least
+    ``SCAN_GAP_MIN_COS``, on a pixel the scan fully covers): ``|z - scan depth| x cos``, the camera-depth
+    difference brought to the surface's normal (a surface parallel to the scan, ``d`` mm off, gives
+    ``d`` in every view). The median over those views; no occlusion test, so a vertex hidden behind
+    another part in some view counts that view's larger gap, which the median outvotes.
+
+    Args:
+        V: (n, 3) float64 positions, mm. F: (m, 3) int64 faces.
+        targets: the expression's cameras and scan ``depth`` (B, H, W, 1) mm, ``coverage`` (B, H, W, 1).
+    Returns:
+        (n,) float64 gap, mm; NaN where no view sees the vertex.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    normals = vertex_normals(torch.from_numpy(V), torch.from_numpy(np.asarray(F, dtype=np.int64))).numpy()
+    gaps = np.full((len(targets.cameras), len(V)), np.nan)
+    for b, camera in enumerate(targets.cameras):
+        depth = targets.depth[b, ..., 0].numpy().astype(np.float64)
+        coverage = targets.coverage[b, ..., 0].numpy().astype(np.float64)
+        h, w = depth.shape
+        xy, z = camera.project(V)
+        inside = np.isfinite(xy).all(axis=1) & (z > 0) & (xy[:, 0] >= 0) & (xy[:, 0] <= w - 1) \
+            & (xy[:, 1] >= 0) & (xy[:, 1] <= h - 1)
+        pix = np.rint(np.where(inside[:, None], xy, 0.0)).astype(np.int64)
+        to_camera = camera.center[None, :] - V
+        cos = (normals * to_camera).sum(axis=1) / np.linalg.norm(to_camera, axis=1).clip(1e-12)
+        seen = inside & (cos >= SCAN_GAP_MIN_COS) & (coverage[pix[:, 1], pix[:, 0]] >= SCAN_GAP_COVERAGE)
+        gaps[b, seen] = np.abs(z[seen] - depth[pix[seen, 1], pix[seen, 0]]) * cos[seen]
+    out = np.full(len(V), np.nan)
+    any_view = np.isfinite(gaps).any(axis=0)
+    out[any_view] = np.nanmedian(gaps[:, any_view], axis=0)
+    return out
+
+
+def gap_factor(gap: np.ndarray, gap_mm: tuple[float, float]) -> np.ndarray:
+    """(n,) float64 in [0, 1]: 1 at or below ``gap_mm[0]`` mm, 0 at or beyond ``gap_mm[1]``, linear between;
+    1 where the gap is unknown (NaN: no view sees the vertex, nothing says it moves)."""
+    held, free = gap_mm
+    ramp = np.clip((free - np.asarray(gap, dtype=np.float64)) / (free - held), 0.0, 1.0)
+    return np.where(np.isfinite(gap), ramp, 1.0)
+
+
 @dataclass
 class TangentialHold:
     """The spring of the hold on one mesh's vertices.
@@ -78,11 +134,16 @@ class TangentialHold:
 
     @classmethod
     def after_first_phase(cls, start: TexturedMesh, moved: TexturedMesh, lam: float, rate: float,
-                          moved_mm: tuple[float, float]) -> "TangentialHold":
+                          moved_mm: tuple[float, float], gap: np.ndarray | None = None,
+                          gap_mm: tuple[float, float] | None = None) -> "TangentialHold":
         """The hold of a registration that started at ``start`` and was at ``moved`` after its first phase
-        (the warm-up, or without one the first flow stage)."""
+        (the warm-up, or without one the first flow stage); with ``gap`` ((n,) mm, :func:`scan_gap` of
+        ``start``) and ``gap_mm``, the weights are also multiplied by :func:`gap_factor`."""
         normals = vertex_normals(torch.from_numpy(start.V), torch.from_numpy(start.F)).numpy()
-        return cls(start.V.copy(), normals, hold_weights(start.V, moved.V, start.F, lam, moved_mm), float(rate))
+        weight = hold_weights(start.V, moved.V, start.F, lam, moved_mm)
+        if gap is not None and gap_mm is not None:
+            weight = weight * gap_factor(gap, gap_mm)
+        return cls(start.V.copy(), normals, weight, float(rate))
 
     @property
     def held_fraction(self) -> float:

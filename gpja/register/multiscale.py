@@ -66,7 +66,7 @@ import torch
 from gpja.errors import GpjaError
 from gpja.mesh import TexturedMesh
 from gpja.register.flow import FlowSettings
-from gpja.register.hold import TangentialHold
+from gpja.register.hold import TangentialHold, scan_gap
 from gpja.register.hra import COLOR_GRADIENTS, ExpressionTargets, Switches, along_surface, render_constraint
 from gpja.register.largesteps import LargeStepsParametrization
 from gpja.register.remesh import refine_by_factor
@@ -111,6 +111,10 @@ class Schedule:
         hold_moved_mm: (held, free): a vertex the warm-up (without one, the first flow stage) moved at most
             ``held`` mm is held fully, one it moved ``free`` mm or more not at all (linear between, then
             smoothed).
+        hold_gap_mm: (held, free) or None (off): the weights are also multiplied by a ramp on the starting
+            surface's gap to the target's scan (``gpja.register.hold.scan_gap``): kept at or below ``held`` mm,
+            0 at or beyond ``free`` mm, so what lies off the scan (a part the expression moves) is free even
+            where the first phase hardly moved it.
         flow_rounds: rounds of optical-flow matching (``gpja.register.flow``) before a level's descent
             (0 = none, the paper; beyond the paper). Only runs when the colour constraint is on.
         flow_levels: how many levels, from the first, start with those rounds.
@@ -138,6 +142,7 @@ class Schedule:
     optimizer_state: str = "shared"
     hold_tangential: float = 0.0
     hold_moved_mm: tuple[float, float] = (0.75, 2.5)
+    hold_gap_mm: tuple[float, float] | None = None
     flow_rounds: int = 0
     flow_levels: int = 1
     flow_smoothness: float = FlowSettings.smoothness
@@ -185,6 +190,9 @@ class Schedule:
             raise ValueError(f"hold_tangential must be in [0, 1), got {self.hold_tangential}")
         if len(self.hold_moved_mm) != 2 or not 0.0 <= float(self.hold_moved_mm[0]) < float(self.hold_moved_mm[1]):
             raise ValueError(f"hold_moved_mm must be two distances 0 <= held < free (mm), got {list(self.hold_moved_mm)}")
+        if self.hold_gap_mm is not None and (len(self.hold_gap_mm) != 2
+                                             or not 0.0 <= float(self.hold_gap_mm[0]) < float(self.hold_gap_mm[1])):
+            raise ValueError(f"hold_gap_mm must be null or two distances 0 <= held < free (mm), got {self.hold_gap_mm}")
 
     def pool(self, level: int) -> int:
         """The colour constraint's pooling box (px) at ``level``."""
@@ -250,7 +258,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         before_flow = mesh
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
         if schedule.hold_tangential > 0 and not warmup:  # the first flow stage tells what moves
-            hold = start_hold(before_flow, mesh, schedule, progress, "the flow stage")
+            hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage")
     if warmup:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
@@ -259,7 +267,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage("warmup", mesh)
         if schedule.hold_tangential > 0:
-            hold = start_hold(start_mesh, mesh, schedule, progress, "the warm-up")
+            hold = start_hold(start_mesh, mesh, schedule, targets, progress, "the warm-up")
     elif schedule.hold_tangential > 0 and hold is None:
         progress("hold: off (no warm-up or flow stage ran to tell moving parts from still ones)")
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
@@ -284,14 +292,19 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     return mesh, log
 
 
-def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, progress: Callable[[str], None],
-               what: str) -> TangentialHold:
+def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, targets: ExpressionTargets,
+               progress: Callable[[str], None], what: str) -> TangentialHold:
     """The tangential hold (``gpja.register.hold``) of a registration that started at ``start`` and was at
-    ``moved`` after its first phase (``what``: the warm-up, or without one the first flow stage)."""
+    ``moved`` after its first phase (``what``: the warm-up, or without one the first flow stage); with
+    ``schedule.hold_gap_mm``, gated by ``start``'s gap to the scan of ``targets``."""
+    gap_mm = None if schedule.hold_gap_mm is None else tuple(schedule.hold_gap_mm)
+    gap = None if gap_mm is None else scan_gap(start.V, start.F, targets)
     hold = TangentialHold.after_first_phase(start, moved, schedule.lambdas[0], schedule.hold_tangential,
-                                            tuple(schedule.hold_moved_mm))
+                                            tuple(schedule.hold_moved_mm), gap, gap_mm)
+    gated = "" if gap is None else (f"; free beyond {gap_mm[1]:g} mm off the scan: {np.mean(gap > gap_mm[1]):.0%} "
+                                    "of the vertices")
     progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
-             f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in {what})")
+             f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in {what}{gated})")
     return hold
 
 

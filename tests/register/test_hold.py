@@ -4,13 +4,17 @@ import pytest
 import torch
 
 from gpja.mesh import TexturedMesh
-from gpja.register.hold import TangentialHold, hold_weights
+from gpja.camera import Camera
+from gpja.register.hold import TangentialHold, gap_factor, hold_weights, scan_gap
+from gpja.register.hra import ExpressionTargets
 from gpja.register.largesteps import LargeStepsParametrization
 from gpja.register.multiscale import Schedule
 from gpja.register.remesh import refine_by_factor, refine_carrying
 
 #: Tolerance of exact identities (float64 arithmetic).
 EXACT = 1e-10
+#: Tolerance of a gap read from a float32 depth image 400 mm away, with the off-axis cosine (<= 1e-4 relative).
+GAP_MM = 1e-3
 
 
 def grid(n: int = 6, size: float = 10.0) -> TexturedMesh:
@@ -93,8 +97,55 @@ def test_shift_moves_the_parametrised_vertices_by_exactly_dx():
     assert param.u.requires_grad
 
 
+def plane_targets(offset_mm: float, covered_from_x_px: int = 0, size: int = 64) -> ExpressionTargets:
+    """One camera 400 mm above the 10 x 10 mm grid's centre looking down -z, and a scan that is the plane
+    ``offset_mm`` below the grid (camera depth 400 + offset), covering the pixels from column
+    ``covered_from_x_px`` on."""
+    K = np.array([[1000.0, 0.0, (size - 1) / 2], [0.0, 1000.0, (size - 1) / 2], [0.0, 0.0, 1.0]])
+    camera = Camera.look_at((5.0, 5.0, 400.0), (5.0, 5.0, 0.0), (0.0, 1.0, 0.0), K, size, size)
+    depth = torch.full((1, size, size, 1), 400.0 + offset_mm)
+    coverage = torch.zeros((1, size, size, 1))
+    coverage[:, :, covered_from_x_px:] = 1.0
+    zeros = torch.zeros((1, size, size, 3))
+    return ExpressionTargets([camera], zeros, depth * coverage, zeros, coverage, torch.zeros(9, 3))
+
+
+def test_the_scan_gap_is_the_distance_to_a_parallel_scan_and_unknown_where_none_is_seen():
+    mesh = grid(6)
+    np.testing.assert_allclose(scan_gap(mesh.V, mesh.F, plane_targets(2.5)), 2.5, atol=GAP_MM)
+    np.testing.assert_allclose(scan_gap(mesh.V, mesh.F, plane_targets(0.0)), 0.0, atol=GAP_MM)
+    # a scan that covers only the right of the image: the left's gap is unknown
+    targets = plane_targets(1.0, covered_from_x_px=32)
+    gap = scan_gap(mesh.V, mesh.F, targets)
+    px, _ = targets.cameras[0].project(mesh.V)
+    left = np.rint(px[:, 0]) < 32
+    assert left.any() and (~left).any()
+    assert np.isnan(gap[left]).all()
+    np.testing.assert_allclose(gap[~left], 1.0, atol=GAP_MM)
+    # a surface facing away from the camera is not seen
+    flipped = mesh.F[:, ::-1].copy()
+    assert np.isnan(scan_gap(mesh.V, flipped, plane_targets(1.0))).all()
+
+
+def test_the_gap_factor_keeps_what_is_on_the_scan_and_frees_what_is_off_it():
+    gap = np.array([0.0, 0.5, 1.25, 2.0, 5.0, np.nan])
+    np.testing.assert_allclose(gap_factor(gap, (0.5, 2.0)), [1.0, 1.0, 0.5, 0.0, 0.0, 1.0], atol=EXACT)
+
+
+def test_a_gated_hold_frees_the_vertices_off_the_scan():
+    mesh = grid(8)
+    gap = np.where(mesh.V[:, 0] > 7.0, 3.0, 0.1)  # the right columns start 3 mm off the scan
+    plain = TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5))
+    gated = TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5), gap, (0.5, 2.0))
+    np.testing.assert_array_equal(plain.weight, 1.0)  # nothing moved in the first phase: all held
+    np.testing.assert_array_equal(gated.weight, np.where(gap > 2.0, 0.0, 1.0))
+    np.testing.assert_array_equal(TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5), gap, None).weight,
+                                  plain.weight)
+
+
 @pytest.mark.parametrize("bad", [{"hold_tangential": -0.1}, {"hold_tangential": 1.0},
-                                 {"hold_moved_mm": (2.0, 1.0)}, {"hold_moved_mm": (1.0,)}])
+                                 {"hold_moved_mm": (2.0, 1.0)}, {"hold_moved_mm": (1.0,)},
+                                 {"hold_gap_mm": (2.0, 0.5)}, {"hold_gap_mm": (1.0,)}, {"hold_gap_mm": (-1.0, 1.0)}])
 def test_schedule_refuses_a_bad_hold(bad):
     with pytest.raises(ValueError, match="hold"):
         Schedule(lambdas=(10.0,), iterations=(1,), **bad)

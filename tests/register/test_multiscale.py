@@ -274,3 +274,19 @@ def test_flow_settings_are_checked():
         Schedule(flow_rounds=-1)
     with pytest.raises(ValueError, match="flow_smoothness"):
         Schedule(flow_smoothness=0.0)
+
+
+def test_a_hold_gated_by_the_scan_frees_what_starts_off_it():
+    from gpja.register.multiscale import start_hold
+    from tests.register.test_hold import grid, plane_targets
+
+    mesh = grid(8)
+    messages = []
+    schedule = Schedule(lambdas=(0.0,), iterations=(1,), hold_tangential=0.1, hold_gap_mm=(0.5, 2.0))
+    on = start_hold(mesh, mesh, schedule, plane_targets(0.2), messages.append, "the flow stage")
+    off = start_hold(mesh, mesh, schedule, plane_targets(3.0), messages.append, "the flow stage")
+    assert on.held_fraction == 1.0 and off.held_fraction == 0.0
+    assert "free beyond 2 mm off the scan: 100% of the vertices" in messages[1]
+    ungated = start_hold(mesh, mesh, Schedule(lambdas=(0.0,), iterations=(1,), hold_tangential=0.1), plane_targets(3.0),
+                         messages.append, "the flow stage")
+    assert ungated.held_fraction == 1.0 and "off the scan" not in messages[2]

@@ -111,7 +111,7 @@ rule register_expression:
     params:
         data=data_args(),
         cache=UNDISTORTED,
-        settings=lambda wc: json_arg(REG[registry.method(wc.method).schedule]),
+        settings=lambda wc: json_arg(registry.method(wc.method).schedule_settings(REG)),
         without=without_args,
         start=start_arg,
         template_dir=results_path("template_dir", "{subject}"),
