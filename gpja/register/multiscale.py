@@ -51,7 +51,8 @@ Tangential hold (beyond the paper, ``Schedule.hold_tangential``): during the
 levels, the vertices the warm-up (without one, the first flow stage) did not
 move far are pulled back, by a small fraction per iteration, towards their
 starting positions along the surface (not along the normal), so untextured
-parts (nose, neck) stop sliding after the jaw (``gpja.register.hold``).
+parts (nose, neck) stop sliding after the jaw (``gpja.register.hold``); with ``hold_gap_mm`` what
+starts off the target's scan is not held.
 """
 from __future__ import annotations
 

@@ -13,11 +13,11 @@
 4. The dense mesh is decimated with pymeshlab's texture-preserving quadric edge
    collapse to the coarse template, which keeps the same texture map.
 The mouth mask B marks the mouth interior in UV space. The paper draws it by hand on the
-template's texture; here it is the bust's mouth-socket charts (``mouth_mask: socket``, the default),
-or those without the texels that look like lips (``interior``, :func:`mask_mouth_interior`): the
+template's texture; here it is the bust's mouth-socket charts (``mouth_mask: socket``), or those
+without the texels that look like lips (``interior``, :func:`mask_mouth_interior`, the default config's): the
 depth fit lays part of the socket onto the lower lip's inner face, and a mask over lip material lets
 the socket cover the target's lips at no colour cost (docs/experiments.md, "The mouth mask over the
-lips": it helps where the target shows the inner lip, not where a closed mouth hides it).
+lips": alone it helps where the target shows the inner lip, not where a closed mouth hides it).
 """
 from __future__ import annotations
 
@@ -82,10 +82,10 @@ class TemplateSettings:
         texture_refine_smoothness: weight of the refinement's total-variation prior on its correction.
         template_faces: face count of the decimated template (paper: ~16K vertices, ~32K faces);
             config key ``faces``.
-        mouth_mask: ``socket``: every texel of the bust's socket charts is masked (the default);
+        mouth_mask: ``socket``: every texel of the bust's socket charts is masked;
             ``interior`` (beyond the paper, an automatic version of its hand-drawn mask): the socket charts'
             texels that look like lips (as light as ``mouth_mask_dark`` x the observed skin's median
-            luminance, as red as the skin) are unmasked (:func:`mask_mouth_interior`).
+            luminance, as red as the skin) are unmasked (:func:`mask_mouth_interior`; the default config's).
         mouth_mask_dark: that fraction (0, 1).
     """
 
