@@ -398,11 +398,11 @@ def mask_mouth_interior(socket: np.ndarray, texture: np.ndarray, observed: np.nd
     """
     socket = np.asarray(socket) < 0.5
     seen = np.ones(socket.shape, dtype=bool) if observed is None else np.asarray(observed, dtype=bool)
-    luminance = np.asarray(texture, dtype=np.float64)[..., :3] @ LUMINANCE
     skin = seen & ~socket
     if not skin.any():  # nothing to compare with: keep the socket charts
         return np.where(socket, 0.0, 1.0).astype(np.float32)
     rgb = np.asarray(texture, dtype=np.float64)[..., :3]
+    luminance = rgb @ LUMINANCE
     red = rgb[..., 0] / np.maximum(rgb.sum(axis=-1), 1e-12)
     lip = (seen & (luminance >= float(dark_fraction) * float(np.median(luminance[skin])))
            & (red >= float(np.median(red[skin]))))
