@@ -294,12 +294,19 @@ class LargeStepsParametrization:
     def shift(self, dx: torch.Tensor) -> None:
         """Move the vertices by exactly ``dx`` ((n, 3), mm): ``u += M dx``, outside autograd.
 
-        The optimiser's moments are kept; the next :meth:`vertices` includes the move.
+        The optimiser's moments are kept; the next :meth:`vertices` includes the move. On the CPU the
+        product is scipy's CSR one in float64 (then cast, as :meth:`rebuild` does): torch's sparse
+        COO product took 38 ms at 164K vertices against scipy's few, and the hold calls this every
+        iteration (docs/benchmarks.md). On another device, torch's sparse product.
         """
-        if self._M_torch is None:
-            self._M_torch = sparse_to_torch(self.M, dtype=self.u.dtype, device=self.u.device)
         with torch.no_grad():
-            self.u += to_differential(dx.to(dtype=self.u.dtype, device=self.u.device), self._M_torch)
+            if self.u.device.type == "cpu":
+                du = torch.from_numpy(self.M @ dx.detach().double().numpy())
+            else:
+                if self._M_torch is None:
+                    self._M_torch = sparse_to_torch(self.M, dtype=self.u.dtype, device=self.u.device)
+                du = to_differential(dx.to(dtype=self.u.dtype, device=self.u.device), self._M_torch)
+            self.u += du.to(dtype=self.u.dtype)
 
     def optimizer(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> UniformAdam:
         """A fresh :class:`UniformAdam` over ``[self.u]`` (call again after :meth:`rebuild`)."""

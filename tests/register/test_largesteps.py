@@ -195,6 +195,19 @@ def test_parametrization_vertices_and_rebuild():
     torch.testing.assert_close(x2, torch.from_numpy(V2), rtol=0, atol=SOLVE_F32_REL * 100)  # radius 100 mm
 
 
+def test_shift_float32_is_the_float64_product_rounded():
+    """``shift`` on the CPU takes scipy's float64 product ``M dx`` and rounds it to ``u``'s dtype: the same
+    ``u`` as torch's sparse product in float64, to float32 rounding."""
+    V, F = sphere_2k()
+    par = LargeStepsParametrization(V, F, lam=20.0)
+    u0 = par.u.detach().double().clone()
+    dx = torch.from_numpy(np.random.default_rng(1).normal(size=V.shape)).float()
+    par.shift(dx)
+    expected = u0 + to_differential(dx.double(), par.M)
+    assert par.u.dtype == torch.float32 and par.u.requires_grad
+    torch.testing.assert_close(par.u.detach().double(), expected, rtol=0, atol=SOLVE_F32_REL * 100)
+
+
 def test_fit_to_target_regression():
     """Fit a sphere to a squashed copy with L2 on x; deterministic, recorded loss trajectory."""
     V, F = noisy_sphere(subdivisions=2, noise=0.0)
