@@ -30,6 +30,14 @@ may still have millimetres to go. With ``hold_gap_mm`` the target's scan says so
 ground truth: per vertex of the starting surface, its gap to the scan as the views see it
 (:func:`scan_gap`), and the weight is multiplied by a second ramp, 1 at or below ``held`` mm, 0 at
 or beyond ``free`` mm (:func:`gap_factor`).
+
+Edge springs (``Schedule.spring_rate``, beyond the paper, off by default): inside a region of uniform
+colour (a lip) nothing in the energy says which material lies where, and the held weights are 0
+where the expression moves. The springs keep the material's spacing there: at every iteration each
+edge gives back ``spring_rate`` of its length change from the start, split between its two ends,
+each vertex taking the mean over its edges (:func:`edge_spring_step`; a Jacobi step of position-based
+dynamics' distance constraint), in the plane of its starting normal, so the depth fit along the normal
+is untouched. They ride on the same start as the hold, carried through refinement the same way.
 """
 from __future__ import annotations
 
@@ -38,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from gpja.mesh import TexturedMesh
+from gpja.mesh import TexturedMesh, unique_edges
 from gpja.register.hra import ExpressionTargets
 from gpja.register.largesteps import SmoothingSolver
 from gpja.register.laplacian import system_matrix
@@ -64,6 +72,32 @@ def hold_weights(start: np.ndarray, moved: np.ndarray, F: np.ndarray, lam: float
         solver = SmoothingSolver(system_matrix(np.asarray(start, dtype=np.float64), F, lam))
         raw = solver.solve(torch.from_numpy(raw[:, None])).numpy()[:, 0]
     return np.clip(raw, 0.0, 1.0)
+
+
+def edge_spring_step(x: torch.Tensor, rest: torch.Tensor, edges: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+    """The move that gives every edge back its rest length, each vertex taking the mean of its edges' shares.
+
+    Per edge (i, j): ``c = (|x_i - x_j| - |r_i - r_j|) / (2 |x_i - x_j|) (x_i - x_j)``; i moves by ``-c``,
+    j by ``+c`` (alone, that edge would get exactly its rest length back). Each vertex's sum is divided by
+    its edge count, then projected onto the plane of its normal.
+
+    Args:
+        x: (n, 3) current positions, mm. rest: (n, 3) rest positions, mm (same dtype).
+        edges: (e, 2) int64 unique vertex pairs. normals: (n, 3) unit normals of the plane each move
+            is kept in.
+    Returns:
+        (n, 3) move, mm, dtype of ``x``; zero where no edge changed length (a rigid motion of ``rest``).
+    """
+    i, j = edges[:, 0], edges[:, 1]
+    e = x[i] - x[j]
+    length = e.norm(dim=1, keepdim=True).clamp_min(1e-12)
+    rest_length = (rest[i] - rest[j]).norm(dim=1, keepdim=True)
+    c = 0.5 * (length - rest_length) / length * e
+    move = torch.zeros_like(x).index_add_(0, i, -c).index_add_(0, j, c)
+    ones = torch.ones_like(length)
+    degree = torch.zeros(len(x), 1, dtype=x.dtype).index_add_(0, i, ones).index_add_(0, j, ones)
+    move = move / degree.clamp_min(1.0)
+    return move - (move * normals).sum(1, keepdim=True) * normals
 
 
 #: A view counts in :func:`scan_gap` where the surface faces it at least this much (cos of normal and
@@ -124,26 +158,32 @@ class TangentialHold:
         normals: (n, 3) float64 unit vertex normals of the starting surface.
         weight: (n,) float64 in [0, 1] (:func:`hold_weights`).
         rate: fraction of a fully held vertex's tangential offset removed per iteration.
+        spring_rate: fraction of each edge's length change from ``start`` given back per iteration
+            (:func:`edge_spring_step`; 0 = no springs).
+        edges: (e, 2) int64 unique edges of the mesh the hold is on (needed when ``spring_rate`` > 0).
     """
 
     start: np.ndarray
     normals: np.ndarray
     weight: np.ndarray
     rate: float
+    spring_rate: float = 0.0
+    edges: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def after_first_phase(cls, start: TexturedMesh, moved: TexturedMesh, lam: float, rate: float,
                           moved_mm: tuple[float, float], gap: np.ndarray | None = None,
-                          gap_mm: tuple[float, float] | None = None) -> "TangentialHold":
+                          gap_mm: tuple[float, float] | None = None, spring_rate: float = 0.0) -> "TangentialHold":
         """The hold of a registration that started at ``start`` and was at ``moved`` after its first phase
         (the warm-up, or without one the first flow stage); with ``gap`` ((n,) mm, :func:`scan_gap` of
-        ``start``) and ``gap_mm``, the weights are also multiplied by :func:`gap_factor`."""
+        ``start``) and ``gap_mm``, the weights are also multiplied by :func:`gap_factor`; with
+        ``spring_rate`` > 0, edge springs to ``start``'s edge lengths as well."""
         normals = vertex_normals(torch.from_numpy(start.V), torch.from_numpy(start.F)).numpy()
         weight = hold_weights(start.V, moved.V, start.F, lam, moved_mm)
         if gap is not None and gap_mm is not None:
             weight = weight * gap_factor(gap, gap_mm)
-        return cls(start.V.copy(), normals, weight, float(rate))
+        return cls(start.V.copy(), normals, weight, float(rate), float(spring_rate), unique_edges(start.F)[0])
 
     @property
     def held_fraction(self) -> float:
@@ -155,7 +195,8 @@ class TangentialHold:
         rows = np.concatenate([self.start, self.normals, self.weight[:, None]], axis=1)
         refined, rows = refine_carrying(mesh, factor, rows)
         normals = rows[:, 3:6] / np.linalg.norm(rows[:, 3:6], axis=1, keepdims=True).clip(1e-12)
-        return refined, TangentialHold(rows[:, :3], normals, rows[:, 6], self.rate)
+        return refined, TangentialHold(rows[:, :3], normals, rows[:, 6], self.rate, self.spring_rate,
+                                       unique_edges(refined.F)[0])
 
     def _tensors(self, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """start, normals, weight (n, 1) as tensors of ``dtype``, converted once (called every iteration)."""
@@ -166,8 +207,14 @@ class TangentialHold:
 
     def correction(self, x: torch.Tensor) -> torch.Tensor:
         """The move ``dx`` (n, 3) (dtype of ``x``, mm) that removes ``rate x weight`` of each vertex's
-        tangential offset from its start; ``x``: (n, 3) current positions, mm."""
+        tangential offset from its start, then (with springs) gives back ``spring_rate`` of the edges'
+        length changes from there (:func:`edge_spring_step`); ``x``: (n, 3) current positions, mm."""
         start, normals, weight = self._tensors(x.dtype)
         offset = x.detach() - start
         tangential = offset - (offset * normals).sum(1, keepdim=True) * normals
-        return -self.rate * weight * tangential
+        dx = -self.rate * weight * tangential
+        if self.spring_rate > 0:
+            if "edges" not in self._cache:
+                self._cache["edges"] = torch.as_tensor(self.edges, dtype=torch.int64)
+            dx = dx + self.spring_rate * edge_spring_step(x.detach() + dx, start, self._cache["edges"], normals)
+        return dx

@@ -116,6 +116,10 @@ class Schedule:
             surface's gap to the target's scan (``gpja.register.hold.scan_gap``): kept at or below ``held`` mm,
             0 at or beyond ``free`` mm, so what lies off the scan (a part the expression moves) is free even
             where the first phase hardly moved it.
+        spring_rate: per level iteration, the fraction of each edge's length change from the registration's
+            start that is given back, along the surface (0 = off, the paper; beyond the paper,
+            ``gpja.register.hold.edge_spring_step``): inside a lip of uniform colour it keeps the material's
+            spacing, which nothing else decides. Needs a warm-up or a flow stage, as the hold does.
         flow_rounds: rounds of optical-flow matching (``gpja.register.flow``) before a level's descent
             (0 = none, the paper; beyond the paper). Only runs when the colour constraint is on.
         flow_levels: how many levels, from the first, start with those rounds.
@@ -144,6 +148,7 @@ class Schedule:
     hold_tangential: float = 0.0
     hold_moved_mm: tuple[float, float] = (0.75, 2.5)
     hold_gap_mm: tuple[float, float] | None = None
+    spring_rate: float = 0.0
     flow_rounds: int = 0
     flow_levels: int = 1
     flow_smoothness: float = FlowSettings.smoothness
@@ -189,11 +194,18 @@ class Schedule:
             raise ValueError(f"color_gradient must be one of {', '.join(COLOR_GRADIENTS)}, got {self.color_gradient!r}")
         if not 0.0 <= float(self.hold_tangential) < 1.0:
             raise ValueError(f"hold_tangential must be in [0, 1), got {self.hold_tangential}")
+        if not 0.0 <= float(self.spring_rate) <= 1.0:
+            raise ValueError(f"spring_rate must be in [0, 1], got {self.spring_rate}")
         if len(self.hold_moved_mm) != 2 or not 0.0 <= float(self.hold_moved_mm[0]) < float(self.hold_moved_mm[1]):
             raise ValueError(f"hold_moved_mm must be two distances 0 <= held < free (mm), got {list(self.hold_moved_mm)}")
         if self.hold_gap_mm is not None and (len(self.hold_gap_mm) != 2
                                              or not 0.0 <= float(self.hold_gap_mm[0]) < float(self.hold_gap_mm[1])):
             raise ValueError(f"hold_gap_mm must be null or two distances 0 <= held < free (mm), got {self.hold_gap_mm}")
+
+    @property
+    def holds(self) -> bool:
+        """Whether the start pulls on the registration: the tangential hold or the edge springs."""
+        return self.hold_tangential > 0 or self.spring_rate > 0
 
     def pool(self, level: int) -> int:
         """The colour constraint's pooling box (px) at ``level``."""
@@ -258,7 +270,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     if flow_levels:
         before_flow = mesh
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
-        if schedule.hold_tangential > 0 and not warmup:  # the first flow stage tells what moves
+        if schedule.holds and not warmup:  # the first flow stage tells what moves
             hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage")
     if warmup:
         start_mesh = mesh
@@ -267,10 +279,10 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         log.levels.append({"stage": "warmup", **entry})
         if on_stage is not None:
             on_stage("warmup", mesh)
-        if schedule.hold_tangential > 0:
+        if schedule.holds:
             hold = start_hold(start_mesh, mesh, schedule, targets, progress, "the warm-up")
-    elif schedule.hold_tangential > 0 and hold is None:
-        progress("hold: off (no warm-up or flow stage ran to tell moving parts from still ones)")
+    elif schedule.holds and hold is None:
+        progress("hold and springs: off (no warm-up or flow stage ran to tell moving parts from still ones)")
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
         start = time.perf_counter()
         if level > 0:
@@ -301,11 +313,14 @@ def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, tar
     gap_mm = None if schedule.hold_gap_mm is None else tuple(schedule.hold_gap_mm)
     gap = None if gap_mm is None else scan_gap(start.V, start.F, targets)
     hold = TangentialHold.after_first_phase(start, moved, schedule.lambdas[0], schedule.hold_tangential,
-                                            tuple(schedule.hold_moved_mm), gap, gap_mm)
+                                            tuple(schedule.hold_moved_mm), gap, gap_mm, schedule.spring_rate)
     gated = "" if gap is None else (f"; free beyond {gap_mm[1]:g} mm off the scan: {np.mean(gap > gap_mm[1]):.0%} "
                                     "of the vertices")
-    progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
-             f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in {what}{gated})")
+    if schedule.hold_tangential > 0:
+        progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
+                 f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in {what}{gated})")
+    if schedule.spring_rate > 0:
+        progress(f"springs: {len(hold.edges)} edges kept at the start's lengths, rate {schedule.spring_rate:g}")
     return hold
 
 
@@ -412,4 +427,5 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
                   "vertices": int(len(mesh.V)), "faces": int(len(mesh.F)),
                   "seconds": round(time.perf_counter() - start, 3), "setup_seconds": round(setup_s, 3),
                   "seconds_by_stage": {k: round(v, 3) for k, v in timings.items()}, "losses": losses,
-                  "hold": None if hold is None else {"rate": hold.rate, "held_fraction": round(hold.held_fraction, 4)}}
+                  "hold": None if hold is None else {"rate": hold.rate, "held_fraction": round(hold.held_fraction, 4),
+                                                     "spring_rate": hold.spring_rate}}

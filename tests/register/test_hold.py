@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 import torch
 
-from gpja.mesh import TexturedMesh
+from gpja.mesh import TexturedMesh, unique_edges
 from gpja.camera import Camera
-from gpja.register.hold import TangentialHold, gap_factor, hold_weights, scan_gap
+from gpja.register.hold import TangentialHold, edge_spring_step, gap_factor, hold_weights, scan_gap
 from gpja.register.hra import ExpressionTargets
 from gpja.register.largesteps import LargeStepsParametrization
 from gpja.register.multiscale import Schedule
@@ -141,6 +141,55 @@ def test_a_gated_hold_frees_the_vertices_off_the_scan():
     np.testing.assert_array_equal(gated.weight, np.where(gap > 2.0, 0.0, 1.0))
     np.testing.assert_array_equal(TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5), gap, None).weight,
                                   plain.weight)
+
+
+def test_one_stretched_edge_gets_its_rest_length_back_in_one_full_step():
+    rest = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
+    x = torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]], dtype=torch.float64)
+    edges = torch.tensor([[0, 1]])
+    move = edge_spring_step(x, rest, edges, torch.tensor([[0.0, 0.0, 1.0]] * 2, dtype=torch.float64))
+    np.testing.assert_allclose(move.numpy(), [[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0]], atol=EXACT)
+    # the same edge stretched along the normals: the move is kept in their plane, so nothing moves
+    along_normal = edge_spring_step(x, rest, edges, torch.tensor([[1.0, 0.0, 0.0]] * 2, dtype=torch.float64))
+    np.testing.assert_allclose(along_normal.numpy(), 0.0, atol=EXACT)
+
+
+def test_springs_do_not_move_a_rigid_motion_of_the_rest_mesh_and_shrink_a_stretch():
+    mesh = grid()
+    edges = torch.from_numpy(unique_edges(mesh.F)[0])
+    rest = torch.from_numpy(mesh.V)
+    normals = torch.tensor([[0.0, 0.0, 1.0]] * len(mesh.V), dtype=torch.float64)
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    R = torch.tensor([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    moved = rest @ R.T + torch.tensor([3.0, -2.0, 0.0], dtype=torch.float64)
+    np.testing.assert_allclose(edge_spring_step(moved, rest, edges, normals).numpy(), 0.0, atol=EXACT)
+    stretched = rest * torch.tensor([1.5, 1.0, 1.0], dtype=torch.float64)  # 50 % wider along x
+    x = stretched.clone()
+    for _ in range(200):
+        x = x + 0.5 * edge_spring_step(x, rest, edges, normals)
+    width = lambda v: float(v[:, 0].max() - v[:, 0].min())
+    assert abs(width(x) - width(rest)) < 0.2 * (width(stretched) - width(rest))  # 0.10 measured
+
+
+def test_the_correction_adds_the_springs_and_refinement_keeps_them():
+    mesh = grid()
+    hold = TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.0, (0.75, 2.5), spring_rate=0.5)
+    assert hold.spring_rate == 0.5 and len(hold.edges) == len(unique_edges(mesh.F)[0])
+    stretched = torch.from_numpy(mesh.V * np.array([1.2, 1.0, 1.0]))
+    expected = 0.5 * edge_spring_step(stretched, torch.from_numpy(mesh.V), torch.from_numpy(hold.edges),
+                                      torch.from_numpy(hold.normals))
+    np.testing.assert_allclose(hold.correction(stretched).numpy(), expected.numpy(), atol=EXACT)
+    assert float(expected.abs().max()) > 0.01
+    fine_mesh, fine = hold.refine(mesh, 2.0)
+    assert fine.spring_rate == 0.5
+    np.testing.assert_array_equal(fine.edges, unique_edges(fine_mesh.F)[0])
+    np.testing.assert_allclose(fine.correction(torch.from_numpy(fine_mesh.V)).numpy(), 0.0, atol=EXACT)
+
+
+@pytest.mark.parametrize("bad", [{"spring_rate": -0.1}, {"spring_rate": 1.5}])
+def test_schedule_refuses_bad_springs(bad):
+    with pytest.raises(ValueError, match="spring_rate"):
+        Schedule(lambdas=(10.0,), iterations=(1,), **bad)
 
 
 @pytest.mark.parametrize("bad", [{"hold_tangential": -0.1}, {"hold_tangential": 1.0},
