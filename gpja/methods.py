@@ -108,8 +108,6 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja-no_flow", "GPJA w/o flow (warm-up)", "ablation", schedule="no_flow"),
     # GPJA without the tangential hold (and its scan gate): what the hold buys
     Method("gpja-no_hold", "GPJA w/o hold", "ablation", overrides=(("hold_tangential", 0.0),)),
-    # GPJA without the edge springs: what they buy where they are on
-    Method("gpja-no_spring", "GPJA w/o springs", "ablation", overrides=(("spring_rate", 0.0),)),
     # the paper's method as published (no warm-up, one Adam, from the template): what each departure buys
     Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),

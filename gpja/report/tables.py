@@ -238,8 +238,8 @@ def ablation_table(run: Run, published: str | None = None) -> Table:
     if scored:
         notes.append("Correspondence: median and mean error against the synthetic ground truth (mm).")
     caption = ("Ablations: geometric error (mm), C.D. (mm), PSNR (dB), SSIM and LPIPS of GPJA without each "
-               "constraint, without the flow stage (gpja-no_flow), without the tangential hold (gpja-no_hold), without the edge "
-               "springs (gpja-no_spring), and with the paper's own schedule (gpja-paper).")
+               "constraint, without the flow stage (gpja-no_flow), without the tangential hold (gpja-no_hold), and with the "
+               "paper's own schedule (gpja-paper).")
     return Table("ablation", caption, [block], csv_header, csv_rows, notes)
 
 
