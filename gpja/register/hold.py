@@ -51,7 +51,7 @@ from gpja.register.hra import ExpressionTargets
 from gpja.register.largesteps import SmoothingSolver
 from gpja.register.laplacian import system_matrix
 from gpja.register.remesh import refine_carrying
-from gpja.render.normals import vertex_normals
+from gpja.render.normals import tangential_part, vertex_normals
 
 
 def hold_weights(start: np.ndarray, moved: np.ndarray, F: np.ndarray, lam: float,
@@ -97,7 +97,7 @@ def edge_spring_step(x: torch.Tensor, rest: torch.Tensor, edges: torch.Tensor, n
     ones = torch.ones_like(length)
     degree = torch.zeros(len(x), 1, dtype=x.dtype).index_add_(0, i, ones).index_add_(0, j, ones)
     move = move / degree.clamp_min(1.0)
-    return move - (move * normals).sum(1, keepdim=True) * normals
+    return tangential_part(move, normals)
 
 
 #: A view counts in :func:`scan_gap` where the surface faces it at least this much (cos of normal and
@@ -211,8 +211,7 @@ class TangentialHold:
         length changes from there (:func:`edge_spring_step`); ``x``: (n, 3) current positions, mm."""
         start, normals, weight = self._tensors(x.dtype)
         offset = x.detach() - start
-        tangential = offset - (offset * normals).sum(1, keepdim=True) * normals
-        dx = -self.rate * weight * tangential
+        dx = -self.rate * weight * tangential_part(offset, normals)
         if self.spring_rate > 0:
             if "edges" not in self._cache:
                 self._cache["edges"] = torch.as_tensor(self.edges, dtype=torch.int64)

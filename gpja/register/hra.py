@@ -34,6 +34,7 @@ import torch
 
 from gpja.camera import Camera
 from gpja.render import RenderOutput, Topology, image_l1, render_views
+from gpja.render.normals import tangential_part
 
 CONSTRAINTS = ("color", "depth", "normal")
 #: How the colour constraint's gradient reaches the vertices: all of it (the paper), or only its part in each
@@ -178,7 +179,7 @@ class _AlongSurface(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad: torch.Tensor):
         (n,) = ctx.saved_tensors
-        return grad - (grad * n).sum(1, keepdim=True) * n, None
+        return tangential_part(grad, n), None
 
 
 def along_surface(V: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:

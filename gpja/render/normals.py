@@ -138,6 +138,12 @@ def normalize_rows(x: torch.Tensor) -> torch.Tensor:
     return x * torch.rsqrt((x * x).sum(dim=1, keepdim=True).clamp_min(1e-24))
 
 
+def tangential_part(v: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+    """Each row of ``v`` (n, 3) projected onto the plane orthogonal to the same row of ``normals`` (n, 3),
+    unit: ``v - (v . n) n``. Same dtype and device as ``v``."""
+    return v - (v * normals).sum(1, keepdim=True) * normals
+
+
 def vertex_normals_torch(V: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """:func:`vertex_normals` as plain torch operations (any device)."""
     # index_select, not V[faces]: the backward of advanced indexing (index_put_ with accumulate) is
