@@ -28,6 +28,7 @@ include: "workflow/rules/register.smk"
 include: "workflow/rules/baselines.smk"
 include: "workflow/rules/metrics.smk"
 include: "workflow/rules/reference.smk"
+include: "workflow/rules/apply.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/report.smk"
 

@@ -242,6 +242,53 @@ def distort_normalized(xy: np.ndarray, distortion: np.ndarray) -> np.ndarray:
     return np.stack([xd, yd], axis=1)
 
 
+def framing_camera(points: np.ndarray, size: int, yaw_deg: float = 0.0, distance_mm: float = 600.0,
+                   margin: float = 1.12, name: str = "") -> Camera:
+    """A square pinhole camera in the canonical head frame that looks at the points and frames them.
+
+    The view direction is the frontal one (from +Z towards -Z) turned by ``yaw_deg`` about +Y (right-handed):
+    the camera centre lies along ``(sin yaw, 0, cos yaw)`` from the points, so 0 is frontal, +90 looks along
+    -X from the +X side (the subject's left: the face looks towards +Z with its top towards +Y, so its left
+    side is +X) and e.g. +35 is a three-quarter view of the subject's left cheek, -35 of the right one.
+
+    Framing (in the camera-aligned frame, i.e. the points turned by -yaw about +Y): the 0.5 / 99.5
+    percentiles of the points per axis give a box; the camera looks at its centre from ``distance_mm`` in
+    front of its near face, and the larger of its width and height times ``margin`` fills the image at the
+    depth of the box centre. Image up is world +Y.
+
+    Args:
+        points: (n, 3) float positions in the canonical head frame, mm (finite, n >= 1).
+        size: image side, px.
+        yaw_deg: rotation of the view direction about +Y, degrees.
+        distance_mm: camera distance to the nearest part of the framed box, mm.
+        margin: extent scale (> 1 leaves a border).
+        name: the camera's name.
+    Returns:
+        an undistorted ``size x size`` camera.
+    Raises:
+        ValueError: no points, or non-finite ones.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) == 0 or not np.isfinite(points).all():
+        raise ValueError("framing_camera needs finite points")
+    yaw = np.deg2rad(float(yaw_deg))
+    c, s = np.cos(yaw), np.sin(yaw)
+    # columns: the camera-aligned frame's right (image x), up (+Y) and backwards (towards the camera) axes;
+    # at yaw 0 the points are used as they are, so the frontal camera's arithmetic is unchanged
+    axes = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    local = points if yaw_deg == 0 else points @ axes
+    lo, hi = np.percentile(local, [0.5, 99.5], axis=0)
+    centre = (lo + hi) / 2.0
+    half = max(hi[0] - lo[0], hi[1] - lo[1]) / 2.0 * margin
+    depth = distance_mm + (hi[2] - centre[2])
+    focal = (size / 2.0) * depth / max(half, 1e-6)
+    K = np.array([[focal, 0.0, (size - 1) / 2.0], [0.0, focal, (size - 1) / 2.0], [0.0, 0.0, 1.0]])
+    eye = np.array([centre[0], centre[1], hi[2] + distance_mm])
+    if yaw_deg != 0:
+        centre, eye = axes @ centre, axes @ eye
+    return Camera.look_at(eye, centre, (0.0, 1.0, 0.0), K, size, size, name=name)
+
+
 def most_frontal_view(cameras: Sequence[Camera]) -> int:
     """Index of the camera looking most directly at the face (its optical axis closest to -Z)."""
     return int(np.argmin([cam.R[2, 2] for cam in cameras]))

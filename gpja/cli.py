@@ -298,6 +298,71 @@ def cmd_check_regression(args: argparse.Namespace) -> int:
     return 1 if failures else 0
 
 
+def _named_paths(items: list[str], option: str) -> dict[str, str]:
+    """``NAME=PATH`` arguments as an ordered mapping."""
+    out = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise InputError(option, f"expected NAME=PATH, got {item!r}")
+        out[name] = path
+    return out
+
+
+def cmd_triangulate(args: argparse.Namespace) -> None:
+    from gpja.apply.settings import RemeshSettings
+    from gpja.apply.steps import triangulate
+
+    settings = RemeshSettings.from_config(_settings(args.settings), "--settings")
+    log = triangulate(args.template_dir, _named_paths(args.meshes, "--meshes"), settings, args.output,
+                      progress=lambda m: print(m, flush=True))
+    print(f"triangulate: {args.subject}: {log['vertices']} vertices in {log['seconds']} s -> {args.output}", flush=True)
+
+
+def cmd_remesh(args: argparse.Namespace) -> None:
+    from gpja.apply.steps import remesh
+
+    remesh(args.common, args.mesh, args.template_dir, args.expression, args.output,
+           progress=lambda m: print(m, flush=True))
+
+
+def cmd_export(args: argparse.Namespace) -> None:
+    from gpja.apply.settings import ExportSettings
+    from gpja.apply.steps import export
+
+    settings = ExportSettings.from_config(_settings(args.settings), "--settings")
+    path = export(_named_paths(args.meshes, "--meshes"), settings.base, args.template_dir, args.output, args.subject)
+    print(f"export: {args.subject}: base {settings.base}, {len(args.meshes) - 1} morph targets -> {path}", flush=True)
+
+
+def cmd_animate(args: argparse.Namespace) -> None:
+    from gpja.apply.settings import AnimationSettings
+    from gpja.apply.steps import animate
+
+    settings = AnimationSettings.from_config(_settings(args.settings), "--settings")
+    start = time.perf_counter()
+    path = animate(_named_paths(args.meshes, "--meshes"), settings, args.template_dir, args.output,
+                   args.frames_output)
+    print(f"animate: {args.subject}: {' -> '.join(settings.sequence)} in {time.perf_counter() - start:.1f} s "
+          f"-> {path}", flush=True)
+
+
+def cmd_artist(args: argparse.Namespace) -> None:
+    from gpja.apply.settings import ReparamSettings
+    from gpja.apply.steps import artist_mesh
+
+    settings = ReparamSettings.from_config(_settings(args.settings), "--settings")
+    log = artist_mesh(args.template_dir, settings, args.subject, args.output, progress=lambda m: print(m, flush=True))
+    print(f"artist: {args.subject}: {log['faces']} faces in {log['seconds']} s -> {args.output}", flush=True)
+
+
+def cmd_reparametrize(args: argparse.Namespace) -> None:
+    from gpja.apply.steps import reparametrize
+
+    reparametrize(args.artist, args.mesh, args.template_dir, args.expression, args.output,
+                  progress=lambda m: print(m, flush=True))
+
+
 def _add_expression_args(p: argparse.ArgumentParser, method: str | None = None) -> None:
     """``--subject`` and ``--expression`` (and ``--method``, with this help, for a scored method's mesh)."""
     p.add_argument("--subject", required=True)
@@ -505,6 +570,59 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the expressions the ablation variants ran on (default: --expressions)")
     p.add_argument("--output-dir", required=True, help="results/{dataset}/tables: {table}.csv|md|tex")
     p.set_defaults(func=cmd_tables)
+
+    p = sub.add_parser("triangulate", help="applications: the triangulation, in the template's texture space, that "
+                                           "every remeshed expression of a subject shares")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--template-dir", required=True, help="the subject's template folder")
+    p.add_argument("--meshes", nargs="+", required=True, help="EXPRESSION=OBJ of every expression it must fit")
+    p.add_argument("--settings", default="{}", help="JSON: the config's applications.remesh section")
+    p.add_argument("--output", required=True, help="the .obj (a .json log beside it)")
+    p.set_defaults(func=cmd_triangulate)
+
+    p = sub.add_parser("remesh", help="applications: one expression on the subject's common triangulation")
+    _add_expression_args(p)
+    p.add_argument("--common", required=True, help="the common triangulation (gpja triangulate)")
+    p.add_argument("--mesh", required=True, help="the expression's registered mesh (template UVs)")
+    p.add_argument("--template-dir", required=True, help="the subject's template folder (texture, lighting)")
+    p.add_argument("--output", required=True, help="the .obj (a .json log of its checks beside it)")
+    p.set_defaults(func=cmd_remesh)
+
+    p = sub.add_parser("export", help="applications: the remeshed expressions as one glTF binary with morph "
+                                      "targets (blendshapes, Blender shape keys)")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--meshes", nargs="+", required=True, help="EXPRESSION=OBJ of every remeshed expression")
+    p.add_argument("--template-dir", required=True, help="the subject's template folder (its texture is embedded)")
+    p.add_argument("--settings", default="{}", help="JSON: the config's applications.export section")
+    p.add_argument("--output", required=True, help="the .glb")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("animate", help="applications: interpolate the remeshed expressions along a sequence, "
+                                       "render, encode a video")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--meshes", nargs="+", required=True, help="EXPRESSION=OBJ of the remeshed expressions")
+    p.add_argument("--template-dir", required=True, help="the subject's template folder (texture, lighting)")
+    p.add_argument("--settings", default="{}", help="JSON: the config's applications.animation section")
+    p.add_argument("--output", required=True, help="the .mp4 (a .gif beside it when no ffmpeg is found)")
+    p.add_argument("--frames-output", required=True, help="the film strip's frames (.npz)")
+    p.set_defaults(func=cmd_animate)
+
+    p = sub.add_parser("artist", help="applications: the artist mesh carried onto every expression (the configured "
+                                      "one, or a stand-in), with the shared texture resampled into its UVs")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--template-dir", required=True, help="the subject's template folder")
+    p.add_argument("--settings", default="{}", help="JSON: the config's applications.reparam section")
+    p.add_argument("--output", required=True, help="the .obj (texture.png and a .json log beside it)")
+    p.set_defaults(func=cmd_artist)
+
+    p = sub.add_parser("reparametrize", help="applications: the artist mesh on one expression (the paper's "
+                                             "phi_b phi_a^-1 through the template's texture space)")
+    _add_expression_args(p)
+    p.add_argument("--artist", required=True, help="the artist mesh (gpja artist)")
+    p.add_argument("--mesh", required=True, help="the expression's registered mesh (template UVs)")
+    p.add_argument("--template-dir", required=True, help="the subject's template folder")
+    p.add_argument("--output", required=True, help="the .obj (a .json log of its checks beside it)")
+    p.set_defaults(func=cmd_reparametrize)
 
     from gpja.report.figures import FIGURES
 

@@ -14,6 +14,9 @@ rules and the readers cannot disagree about a path.
     results/{dataset}/{subject}/{method}/{expression}.obj|.json   a method's mesh and its log
     results/{dataset}/{subject}/{method}/metrics/{expression}.json (+ folder of per-vertex errors, renders)
     results/{dataset}/{subject}/contact_sheet.png, all.done
+    results/{dataset}/{subject}/remeshed/common.obj, {expression}.obj   every expression on one triangulation
+    results/{dataset}/{subject}/reparam/artist.obj, {expression}.obj    the artist mesh on every expression
+    results/{dataset}/{subject}/animation.mp4, animation_frames.npz, {subject}.glb
     results/{dataset}/tables/{table}.csv|md|tex
     results/{dataset}/figures/{figure}_{subject}.png|pdf
     results/{dataset}/undistorted/                             cache of undistorted reference images
@@ -144,6 +147,42 @@ class Layout:
         """``(subject, method, expression)`` of every :meth:`metrics` JSON present under ``root``, sorted."""
         pattern = self.metrics("*", "*", "*").relative_to(self.root)
         return [(p.parent.parent.parent.name, p.parent.parent.name, p.stem) for p in sorted(self.root.glob(str(pattern)))]
+
+    # --- applications (gpja.apply), per subject --------------------------------------------------------------
+    def remeshed_dir(self, subject: str) -> Path:
+        return self.subject_dir(subject) / "remeshed"
+
+    def common_triangulation(self, subject: str) -> Path:
+        """The triangulation every remeshed expression shares (``gpja triangulate``): .obj, and a .json log."""
+        return self.remeshed_dir(subject) / "common.obj"
+
+    def remeshed(self, subject: str, expression: str) -> Path:
+        """One expression on the common triangulation (``gpja remesh``): .obj (+ .mtl), a .json log beside it."""
+        return self.remeshed_dir(subject) / f"{expression}.obj"
+
+    def reparam_dir(self, subject: str) -> Path:
+        return self.subject_dir(subject) / "reparam"
+
+    def artist_mesh(self, subject: str) -> Path:
+        """The artist mesh carried onto every expression (a copy of the configured one, or the stand-in): .obj,
+        and its own texture ``reparam/texture.png`` resampled from the shared one."""
+        return self.reparam_dir(subject) / "artist.obj"
+
+    def reparametrized(self, subject: str, expression: str) -> Path:
+        """One expression in the artist mesh's topology and UVs (``gpja reparametrize``), a .json log beside it."""
+        return self.reparam_dir(subject) / f"{expression}.obj"
+
+    def animation(self, subject: str) -> Path:
+        """The animation of the remeshed expressions (``gpja animate``); ``.gif`` when no ffmpeg is found."""
+        return self.subject_dir(subject) / "animation.mp4"
+
+    def animation_frames(self, subject: str) -> Path:
+        """The animation's key frames (.npz) the film-strip figure draws."""
+        return self.subject_dir(subject) / "animation_frames.npz"
+
+    def blendshapes(self, subject: str) -> Path:
+        """The glTF 2.0 binary: the base expression and every other as a morph target (``gpja export``)."""
+        return self.subject_dir(subject) / f"{subject}.glb"
 
     # --- dataset-wide ----------------------------------------------------------------------------------------
     @property

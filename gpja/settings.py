@@ -48,6 +48,10 @@ SECTIONS = {
     "baselines.nicp.settings": "gpja.baselines.nicp:NicpSettings",
     "metrics": "gpja.metrics.evaluate:MetricSettings",
     "figures": "gpja.report.figures:FigureSettings",
+    "applications.remesh": "gpja.apply.settings:RemeshSettings",
+    "applications.animation": "gpja.apply.settings:AnimationSettings",
+    "applications.export": "gpja.apply.settings:ExportSettings",
+    "applications.reparam": "gpja.apply.settings:ReparamSettings",
 }
 #: Keys of a section that the workflow itself reads: they are no settings field.
 WORKFLOW_KEYS = {"synthetic": ("enabled", "raw_root")}
@@ -237,8 +241,10 @@ def data_expressions(config: Mapping[str, Any]) -> list[str]:
 def settings_section(config: Mapping[str, Any], key: str) -> dict | None:
     """The settings mapping of section ``key`` that a step receives: the config section without the keys
     the workflow reads itself (:data:`WORKFLOW_KEYS`), plus the fields it derives (:data:`DERIVED_KEYS`).
-    None when the run does not use the section (synthesis off, NICP off, section absent)."""
+    None when the run does not use the section (synthesis off, NICP off, applications off, section absent)."""
     if key == "synthetic" and not (lookup(config, "synthetic.enabled")):
+        return None
+    if key.startswith("applications.") and not lookup(config, "applications.enabled"):
         return None
     if key == "baselines.nicp.settings" and not lookup(config, "baselines.nicp.enabled"):
         return None
@@ -270,4 +276,18 @@ def check_config(config: Mapping[str, Any]) -> dict[str, Any]:
         section = settings_section(config, key)
         if section is not None:
             built[key] = settings_class(key).from_config(section, key)
+    check_applications(config, built)
     return built
+
+
+def check_applications(config: Mapping[str, Any], built: Mapping[str, Any]) -> None:
+    """The applications' expressions (animation sequence, export base) must be among the run's, when they run."""
+    if not lookup(config, "applications.enabled"):
+        return
+    available = data_expressions(config)
+    for key, names in (("applications.animation", lambda s: s.sequence), ("applications.export", lambda s: [s.base])):
+        wanted = names(built[key] if key in built else settings_class(key)())
+        missing = [e for e in dict.fromkeys(wanted) if e not in available]
+        if missing:
+            raise InputError(key, f"expression(s) {', '.join(missing)} are not in the run (expressions and the "
+                                  f"template's: {', '.join(available)})")

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from gpja.camera import Camera, most_frontal_view
+from gpja.camera import Camera, framing_camera, most_frontal_view
 from gpja.errors import InputError
 from tests.conftest import distort_image, make_cameras, smooth_image
-from tests.tolerances import EXACT_F64, IMAGE_ROUNDTRIP_RATIO, UNDISTORT_PX
+from tests.tolerances import EXACT_F64, FIGURE_CENTRE_PX, IMAGE_ROUNDTRIP_RATIO, UNDISTORT_PX
 
 
 def frontal(distortion=None):
@@ -112,3 +112,83 @@ def test_most_frontal_view_picks_the_camera_facing_the_face():
     front = Camera.look_at([0.0, 0, 600.0], [0, 0, 0], [0, 1, 0], K, 128, 128, name="front")
     assert most_frontal_view([side, front]) == 1
     assert most_frontal_view([front, side]) == 0
+
+
+# --- framing_camera ----------------------------------------------------------------------------------------
+
+#: The frontal figure camera after its move into framing_camera vs its own earlier arithmetic (same float ops).
+FRAMING_SAME_CAMERA = 1e-12
+
+
+def head_like_points(seed: int = 0) -> np.ndarray:
+    """(400, 3) mm: an ellipsoidal cloud off the origin, deeper than wide (a head's proportions, roughly)."""
+    rng = np.random.default_rng(seed)
+    return rng.normal(size=(400, 3)) * [70.0, 90.0, 60.0] + [12.0, -30.0, 45.0]
+
+
+#: The frontal camera of ``head_like_points`` before ``frontal_camera`` delegated to ``framing_camera``: focal
+#: length (px) and centre (mm), computed with the formula it had then (percentile box, eye in front of the box).
+FRONTAL_AS_IT_WAS = {64: (94.06053833630965, (-3.442314084961211, -42.36399832608329, 788.5252974687788)),
+                     257: (338.1116366246483, (-3.442314084961211, -42.36399832608329, 638.5252974687788))}
+
+
+@pytest.mark.parametrize("size, kwargs", [(64, {}), (257, {"distance_mm": 450.0, "margin": 1.0})])
+def test_framing_camera_at_yaw_0_is_the_frontal_figure_camera(size, kwargs):
+    from gpja.report.drawing import frontal_camera
+
+    P = head_like_points()
+    focal, centre = FRONTAL_AS_IT_WAS[size]
+    for cam in (frontal_camera(P, size, **kwargs), framing_camera(P, size, yaw_deg=0.0, name="frontal", **kwargs)):
+        np.testing.assert_allclose(cam.K, [[focal, 0, (size - 1) / 2], [0, focal, (size - 1) / 2], [0, 0, 1]],
+                                   rtol=0, atol=FRAMING_SAME_CAMERA)
+        np.testing.assert_allclose(cam.center, centre, rtol=0, atol=FRAMING_SAME_CAMERA)
+        np.testing.assert_allclose(cam.R, np.eye(3) * [1, -1, -1], rtol=0, atol=FRAMING_SAME_CAMERA)
+        assert (cam.name, cam.width, cam.height) == ("frontal", size, size)
+        assert not cam.has_distortion
+
+
+def test_framing_camera_at_yaw_90_looks_along_minus_x_from_the_subjects_left():
+    P = head_like_points()
+    cam = framing_camera(P, 64, yaw_deg=90.0, name="side")
+    centre = (np.percentile(P, 0.5, axis=0) + np.percentile(P, 99.5, axis=0)) / 2.0
+    np.testing.assert_allclose(cam.R[2], [-1.0, 0.0, 0.0], atol=EXACT_F64)  # optical axis along -X
+    np.testing.assert_allclose(cam.R[1], [0.0, -1.0, 0.0], atol=EXACT_F64)  # image down = world -Y
+    assert cam.center[0] > np.percentile(P[:, 0], 99.5) + 500.0  # on the +X side, ~600 mm out
+    np.testing.assert_allclose(cam.center[1:], centre[1:], atol=EXACT_F64)
+    assert cam.name == "side"
+    # the face (+Z) is on the image's left seen from the subject's left
+    left, right = cam.project(np.array([[0.0, 0.0, 40.0], [0.0, 0.0, -40.0]]) + centre)[0][:, 0]
+    assert left < right
+
+
+@pytest.mark.parametrize("yaw", [-35.0, 0.0, 35.0, 90.0, 180.0])
+def test_framing_camera_frames_the_points_from_every_yaw(yaw):
+    P = head_like_points(1)
+    size = 96
+    cam = framing_camera(P, size, yaw_deg=yaw, margin=1.12)
+    uv, z = cam.project(P)
+    assert np.all(z > 0)
+    lo, hi = np.percentile(uv, [0.5, 99.5], axis=0)
+    assert np.all(lo >= -0.5) and np.all(hi <= size - 0.5)  # the framed 99 % project inside the image
+    assert (hi - lo).max() > 0.6 * size  # and fill it (not framed from far too far)
+    # the view direction is the frontal one turned by the yaw about +Y, and the framed box's centre
+    # (0.5-99.5 percentiles along the image axes and the view direction) is at the image centre
+    c, s = np.cos(np.deg2rad(yaw)), np.sin(np.deg2rad(yaw))
+    axes = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # rows: image right, world up, towards camera
+    np.testing.assert_allclose(-cam.R[2], axes[2], atol=EXACT_F64)
+    box_centre = np.percentile(P @ axes.T, [0.5, 99.5], axis=0).mean(axis=0) @ axes
+    np.testing.assert_allclose(cam.project(box_centre[None])[0][0], [(size - 1) / 2] * 2, atol=FIGURE_CENTRE_PX)
+
+
+def test_framing_camera_mirrors_with_the_yaw():
+    P = head_like_points(2)
+    plus, minus = framing_camera(P, 64, yaw_deg=35.0), framing_camera(P * [-1, 1, 1], 64, yaw_deg=-35.0)
+    np.testing.assert_allclose(minus.center, plus.center * [-1, 1, 1], atol=EXACT_F64)
+    np.testing.assert_allclose(minus.K, plus.K, atol=EXACT_F64)
+
+
+def test_framing_camera_rejects_empty_or_non_finite_points():
+    with pytest.raises(ValueError, match="finite points"):
+        framing_camera(np.zeros((0, 3)), 32)
+    with pytest.raises(ValueError, match="finite points"):
+        framing_camera(np.array([[0.0, np.nan, 0.0]]), 32)

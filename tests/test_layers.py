@@ -17,7 +17,8 @@ PACKAGE_DIR = Path(gpja.__file__).parent
 #: The shared lower layer: it may import only itself (and third-party code).
 LOWER = ("gpja.mesh", "gpja.camera", "gpja.io", "gpja.errors", "gpja.lighting", "gpja.surface", "gpja.results",
          "gpja.methods")
-UPPER = ("gpja.data", "gpja.render", "gpja.register", "gpja.metrics", "gpja.baselines", "gpja.report", "gpja.cli")
+UPPER = ("gpja.data", "gpja.render", "gpja.register", "gpja.metrics", "gpja.baselines", "gpja.apply", "gpja.report",
+         "gpja.cli")
 
 
 def module_name(path: Path) -> str:
@@ -75,6 +76,8 @@ RULES = [
     ("scoring and baselines do not lean on the method they score", ("gpja.metrics", "gpja.baselines"),
      ("gpja.register",)),
     ("the registration does not read the synthetic generator", ("gpja.register",), ("gpja.data.synthetic",)),
+    ("the applications read what registration wrote, never the ground truth", ("gpja.apply",),
+     ("gpja.data.synthetic", "gpja.data.ground_truth", "gpja.metrics.correspondence", "gpja.baselines")),
     ("the renderer sits below registration, scoring and reporting", ("gpja.render",),
      ("gpja.register", "gpja.metrics", "gpja.baselines", "gpja.report", "gpja.cli")),
     ("the lower layer imports only itself", LOWER, UPPER),

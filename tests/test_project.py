@@ -271,6 +271,26 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
                  "convergence", "ablation_mask", "registration_stages"):
         for suffix in ("png", "pdf"):
             assert (figures / f"{kind}_S01.{suffix}").stat().st_size > 10_000, f"{kind}.{suffix}"
+    # the applications: one triangulation for every expression, on its source; a glTF; a video; the artist mesh
+    from gpja.apply.steps import read_remeshed
+
+    subject_dir = work / f"results/{cfg['dataset']}/S01"
+    apps = cfg["applications"]
+    remeshed = read_remeshed({e: subject_dir / "remeshed" / f"{e}.obj" for e in cfg["expressions"]})  # shared F/UV
+    assert len(next(iter(remeshed.values())).V) > len(template.V)
+    for expression in cfg["expressions"]:
+        log = json.loads((subject_dir / "remeshed" / f"{expression}.json").read_text())
+        assert max(log["deviation"]["to_source"]["max_mm"], log["deviation"]["from_source"]["max_mm"]) <= 0.1
+        assert log["render"]["identical"] or log["render"]["psnr_db"] >= 35.0
+        carried = json.loads((subject_dir / "reparam" / f"{expression}.json").read_text())
+        assert carried["distance_to_source_mm"]["max"] <= 1e-3
+    assert (subject_dir / "S01.glb").stat().st_size > 100_000
+    assert (subject_dir / "animation.mp4").stat().st_size > 1_000
+    frames = np.load(subject_dir / "animation_frames.npz")
+    assert len(frames["frames"]) == apps["animation"]["strip_frames"]
+    assert int(frames["count"]) == (len(apps["animation"]["sequence"]) - 1) * apps["animation"]["frames_per_transition"] + 1
+    for kind in ("animation", "reparam"):
+        assert (figures / f"{kind}_S01.png").stat().st_size > 10_000, kind
     report = (work / f"results/{cfg['dataset']}/report.html").read_text(errors="replace")
     assert "closeups_S01.png" in report and "geometry.md" in report  # figures and tables in the HTML report
     # the maintainers' regression gate: every metric within tolerance of the committed reference

@@ -51,6 +51,11 @@ NON_DEFAULT = {
     "metrics": {"samples": 1234, "seed": 9, "thresholds_mm": [0.25], "coverage": "distance", "max_distance_mm": 3.0,
                 "correspondence_max_distance_mm": 1.5, "photometric": False},
     "figures": {"view": "3", "heatmap_max_mm": 2.0, "render_size": 128},
+    "applications.remesh": {"initial_vertices": 5000, "tolerance_mm": 0.1, "max_vertices": 60000, "max_rounds": 3},
+    "applications.animation": {"sequence": ["1_neutral", "2_smile"], "frames_per_transition": 5, "fps": 12,
+                               "size": 64, "yaw_deg": [10.0], "strip_frames": 3},
+    "applications.export": {"base": "2_smile"},
+    "applications.reparam": {"artist_mesh": "artists/{subject}.obj", "standin_faces": 500, "texture_size": 64},
 }
 
 
@@ -261,7 +266,8 @@ def test_cross_field_errors_name_the_config_key(change, match):
 
 def test_unused_sections_are_not_checked():
     cfg = broken(lambda c: (c["synthetic"].update(enabled=False), c.update(expressions=["1_neutral", "99_unknown"]),
-                            c["baselines"]["nicp"].update(enabled=False, settings={"steps": []})))
+                            c["baselines"]["nicp"].update(enabled=False, settings={"steps": []}),
+                            c["applications"].update(enabled=False, animation={"size": -1})))
     assert set(check_config(cfg)) == {"registration.template", "registration.gpja", "registration.paper", "metrics"}
 
 
@@ -283,3 +289,21 @@ def test_dry_run_stops_on_a_cross_field_error(tmp_path):
                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert out.returncode != 0
     assert "registration.gpja: lambdas (3) and iterations (2) need one entry per level" in out.stdout + out.stderr
+
+
+def test_applications_expressions_must_be_in_the_run():
+    config = load("config.yaml")
+    config["applications"]["animation"]["sequence"] = ["1_neutral", "20_brow_lower"]
+    with pytest.raises(InputError, match="applications.animation.*20_brow_lower"):
+        check_config(config)
+    config = load("config.yaml")
+    config["applications"]["export"]["base"] = "5_jaw_left"
+    with pytest.raises(InputError, match="applications.export.*5_jaw_left"):
+        check_config(config)
+    config["applications"]["enabled"] = False  # not run: not checked
+    check_config(config)
+    config = load("config.yaml")
+    del config["applications"]["animation"]  # the defaults are checked too
+    config["expressions"] = ["1_neutral", "13_lip_funneler"]
+    with pytest.raises(InputError, match="2_smile"):
+        check_config(config)

@@ -71,10 +71,27 @@ def split_long_edges(mesh: TexturedMesh, max_edge_mm: float) -> TexturedMesh:
 def _split_long_edges(mesh: TexturedMesh, max_edge_mm: float,
                       rows: np.ndarray | None) -> tuple[TexturedMesh, np.ndarray | None]:
     """:func:`split_long_edges`, and per-vertex ``rows`` (n, k) extended by the same midpoints (or None)."""
+    edges, _ = unique_edges(mesh.F)
+    length = np.linalg.norm(mesh.V[edges[:, 0]] - mesh.V[edges[:, 1]], axis=1)
+    return split_edges(mesh, length > max_edge_mm, rows)
+
+
+def split_edges(mesh: TexturedMesh, split: np.ndarray,
+                rows: np.ndarray | None = None) -> tuple[TexturedMesh, np.ndarray | None]:
+    """Split the chosen edges at their midpoints (conforming, UV-exact), carrying per-vertex ``rows``.
+
+    Args:
+        mesh: a triangle mesh, optionally with UVs; positions in mm.
+        split: (e,) bool per edge of ``unique_edges(mesh.F)``, in its order.
+        rows: (n, k) float per-vertex values, or None; new vertices get their edge's mean.
+    Returns:
+        The refined mesh (original vertices first, in order; the texture image shared) and the rows.
+    """
     V, F = mesh.V, mesh.F
     edges, face_edge = unique_edges(F)
-    length = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
-    split = length > max_edge_mm
+    split = np.asarray(split, dtype=bool)
+    if split.shape != (len(edges),):
+        raise ValueError(f"split must have one entry per edge ({len(edges)}), got shape {split.shape}")
     if not split.any():
         return mesh, rows
     mid_v = np.full(len(edges), -1, dtype=np.int64)

@@ -11,7 +11,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from gpja.camera import Camera
+from gpja.camera import Camera, framing_camera
 from gpja.io import atomic_path
 
 #: Colour map of the geometric-error heatmaps (perceptually ordered, dark = small).
@@ -104,23 +104,15 @@ def frontal_camera(points: np.ndarray, size: int, distance_mm: float = RENDER_DI
                    margin: float = 1.12) -> Camera:
     """A pinhole camera looking at the points from the front (+Z), framing their x-y extent.
 
+    :func:`gpja.camera.framing_camera` at yaw 0, named "frontal".
+
     Args:
         points: (n, 3) float positions in the canonical head frame, mm.
         size: image side (px).
     Returns:
         an undistorted ``size x size`` camera, y up in the world = up in the image.
     """
-    points = np.asarray(points, dtype=np.float64)
-    if len(points) == 0 or not np.isfinite(points).all():
-        raise ValueError("frontal_camera needs finite points")
-    lo, hi = np.percentile(points, [0.5, 99.5], axis=0)
-    centre = (lo + hi) / 2.0
-    half = max(hi[0] - lo[0], hi[1] - lo[1]) / 2.0 * margin
-    depth = distance_mm + (hi[2] - centre[2])
-    focal = (size / 2.0) * depth / max(half, 1e-6)
-    K = np.array([[focal, 0.0, (size - 1) / 2.0], [0.0, focal, (size - 1) / 2.0], [0.0, 0.0, 1.0]])
-    eye = np.array([centre[0], centre[1], hi[2] + distance_mm])
-    return Camera.look_at(eye, centre, (0.0, 1.0, 0.0), K, size, size, name="frontal")
+    return framing_camera(points, size, yaw_deg=0.0, distance_mm=distance_mm, margin=margin, name="frontal")
 
 
 @dataclass

@@ -30,7 +30,7 @@ COMPARED = "compared"
 #: the metrics JSONs (and their detail folders) or the registration logs of its methods and expressions, and
 #: on synthetic data the texture's quality against the ground truth (``template/texture_quality.json`` and its
 #: error image; an input only where the run has ground truth).
-NEEDS = ("template", "metrics", "registration_logs", "texture_quality", "stages")
+NEEDS = ("template", "metrics", "registration_logs", "texture_quality", "stages", "animation", "reparam")
 #: The texture-quality files of a template folder (``gpja texture-quality``; gpja.metrics.texture_quality).
 TEXTURE_QUALITY_FILES = ("texture_quality.json", "texture_error.png")
 
@@ -134,6 +134,7 @@ class Figure:
         photometric: drawn only when ``metrics.photometric`` is on (it reads the photometric renders).
         needs: which of :data:`NEEDS` are its workflow inputs.
         ground_truth: drawn only on synthetic data with its ground truth (it reads scores against it).
+        applications: drawn only when the config runs the applications (``applications.enabled``).
     """
 
     name: str
@@ -143,6 +144,7 @@ class Figure:
     photometric: bool = False
     needs: tuple[str, ...] = ("template", "metrics")
     ground_truth: bool = False
+    applications: bool = False
 
     def __post_init__(self):
         unknown = set(self.needs) - set(NEEDS)
@@ -181,18 +183,21 @@ FIGURES: dict[str, Figure] = {f.name: f for f in [
            methods=("gpja", "gpja-no_normal"), ablation=True),
     Figure("ablation_mask", "gpja.report.figures_photometry:draw_ablation_mask",
            methods=("gpja", "gpja-no_mask"), ablation=True, photometric=True),
+    Figure("animation", "gpja.report.figures_applications:draw_animation", needs=("animation",), applications=True),
+    Figure("reparam", "gpja.report.figures_applications:draw_reparam", needs=("template", "reparam"),
+           applications=True),
 ]}
 
 
 def register_figure(name: str, *, methods: tuple[str, ...] | str = ("gpja",), ablation: bool = False,
                     photometric: bool = False, needs: tuple[str, ...] = ("template", "metrics"),
-                    ground_truth: bool = False):
+                    ground_truth: bool = False, applications: bool = False):
     """Decorator: add ``draw(request) -> Figure`` to :data:`FIGURES` under ``name`` (a new name only)."""
 
     def decorate(draw: Callable[[FigureRequest], Any]):
         if name in FIGURES:
             raise ValueError(f"figure {name!r} is already registered")
-        FIGURES[name] = Figure(name, draw, methods, ablation, photometric, tuple(needs), ground_truth)
+        FIGURES[name] = Figure(name, draw, methods, ablation, photometric, tuple(needs), ground_truth, applications)
         return draw
 
     return decorate
@@ -244,6 +249,8 @@ class FigurePlan:
         ablation_expressions: the expressions they run on (those outside ``expressions`` are not run).
         photometric: ``metrics.photometric``.
         ground_truth: the data is synthetic with its ground truth (``data.ground_truth_root``, no Rt_scale).
+        applications: ``applications.enabled``.
+        application_expressions: the expressions the applications run on (the run's and the template's).
     """
 
     layout: Layout
@@ -254,6 +261,8 @@ class FigurePlan:
     ablation_expressions: tuple[str, ...] = ()
     photometric: bool = True
     ground_truth: bool = False
+    applications: bool = False
+    application_expressions: tuple[str, ...] = ()
 
     def methods(self, entry: Figure) -> list[str]:
         """The methods the figure draws in this configuration."""
@@ -263,11 +272,15 @@ class FigurePlan:
         """The expressions the figure draws: the ablation expressions that are run, or every expression."""
         if entry.ablation:
             return [e for e in self.ablation_expressions if e in self.expressions]
+        if entry.applications:
+            return list(self.application_expressions or self.expressions)
         return list(self.expressions)
 
     def draws(self, entry: Figure, subject: str) -> bool:
         """Whether the configuration draws the figure for ``subject``: its methods are all produced there."""
         if (entry.photometric and not self.photometric) or (entry.ground_truth and not self.ground_truth):
+            return False
+        if entry.applications and not self.applications:
             return False
         produced = set(self.compared)
         if entry.ablation:
@@ -298,6 +311,11 @@ class FigurePlan:
             files += [self.layout.metrics(subject, m, e) for m, e in pairs]
         if "stages" in entry.needs:
             files += [self.layout.stage_scores(subject, m, e) for m, e in pairs]
+        if "animation" in entry.needs:
+            files.append(self.layout.animation_frames(subject))
+        if "reparam" in entry.needs:
+            files += [self.layout.artist_mesh(subject)]
+            files += [self.layout.reparametrized(subject, e) for e in self.expressions_of(entry)]
         if "texture_quality" in entry.needs and self.ground_truth:
             files += [self.layout.template_file(subject, name) for name in TEXTURE_QUALITY_FILES]
         return [str(f) for f in files]

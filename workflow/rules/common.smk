@@ -137,6 +137,7 @@ def subject_targets(subject):
     targets.append(results_path("template_file", subject, "template.obj"))
     targets += metrics_files(subject)
     targets += reference_targets(subject)  # synthetic: texture quality, oracle (workflow/rules/reference.smk)
+    targets += application_targets(subject)  # workflow/rules/apply.smk
     targets += FIGURE_PLAN.outputs(subject)  # workflow/rules/figures.smk
     return targets
 

@@ -12,6 +12,8 @@ FIGURE_PLAN = FigurePlan(
     ablation_expressions=tuple(ABLATION_EXPRESSIONS),
     photometric=config["metrics"].get("photometric", True),
     ground_truth=GROUND_TRUTH,  # workflow/rules/reference.smk
+    applications=APPS_ON,  # workflow/rules/apply.smk
+    application_expressions=tuple(APP_EXPRESSIONS),
 )
 
 

@@ -1,0 +1,288 @@
+"""Every expression of a subject on one triangulation, defined in the template's texture space.
+
+GPJA's meshes share the template's UV parametrisation (refinement splits UV edges exactly,
+``gpja.register.remesh``), but each expression's refinement split different edges, so their vertex
+samplings differ. The common triangulation is the template's own (V, F, UV, F_uv) refined by the same
+UV-exact midpoint splits to a chosen vertex count, on the template's geometry, once per subject
+(:func:`common_triangulation`). Each of its vertices is then located in an expression mesh by its texture
+coordinate, which gives a face and barycentrics there, hence a 3-D position (:func:`remesh_onto`): the
+paper's map between expressions through texture space.
+
+- Seams: a vertex on a seam has one texture coordinate per chart. It exists once in 3-D; it is located
+  through each of its charts, the positions must agree (:data:`SEAM_AGREEMENT_MM`), and it takes their mean.
+- The mouth socket and other parts no camera saw are in the atlas like the rest and go through the same map.
+
+The point location uses Open3D's closest-point queries on the UV triangles laid in the plane z = 0
+(``gpja.surface``: one BVH for every query), then recomputes the barycentrics in float64 from the face it
+found, so a point inside a UV triangle lands exactly on the float64 3-D triangle.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from gpja.errors import InputError
+from gpja.mesh import TexturedMesh, unique_edges
+from gpja.register.remesh import split_edges
+from gpja.surface import prepare_surface
+
+#: Texture coordinates of the common triangulation farther than this from the mesh's atlas (UV units: 1e-6 of
+#: the texture's side) mean the mesh does not share the template's parametrisation.
+UV_OFF_ATLAS = 1e-6
+#: The charts of a seam vertex must put it within this distance of each other in 3-D (mm).
+SEAM_AGREEMENT_MM = 1e-4
+#: :func:`fit_triangulation` splits whole faces once a round leaves more than this share of the previous round's
+#: bad edges (on S01's expressions red-green rounds keep 0.5-0.78 of them until only folds are left, then 0.9+).
+STALLED = 0.85
+#: Growth per refinement round of :func:`common_triangulation` (the registration's own factor).
+GROWTH_PER_ROUND = 2.5
+
+
+def common_triangulation(template: TexturedMesh, vertices: int) -> TexturedMesh:
+    """The template's triangulation refined to exactly ``vertices`` vertices (UV-exact midpoint splits of the
+    longest edges, ``GROWTH_PER_ROUND`` at most per round; ties broken by edge order).
+
+    Args:
+        template: the subject's template (V (n, 3) mm, F, UV (k, 2), F_uv), which every registered
+            expression's UVs refine.
+        vertices: the wanted vertex count (at least the template's).
+    Returns:
+        A mesh whose F, UV and F_uv every remeshed expression shares; its V lies on the template, whose
+        vertices come first.
+    """
+    if not template.has_uv:
+        raise ValueError("the template has no texture coordinates")
+    if vertices < len(template.V):
+        raise ValueError(f"the common triangulation needs at least the template's {len(template.V)} vertices, "
+                         f"got {vertices}")
+    mesh = TexturedMesh(template.V, template.F, template.UV, template.F_uv)
+    while len(mesh.V) < vertices:
+        edges, _ = unique_edges(mesh.F)
+        length = np.linalg.norm(mesh.V[edges[:, 0]] - mesh.V[edges[:, 1]], axis=1)
+        # one new vertex per split edge: the longest ones, as many as this round may add
+        count = min(vertices - len(mesh.V), int(np.ceil((GROWTH_PER_ROUND - 1.0) * len(mesh.V))), len(edges))
+        split = np.zeros(len(edges), dtype=bool)
+        split[np.argsort(-length, kind="stable")[:count]] = True
+        mesh = split_edges(mesh, split)[0]
+    return mesh
+
+
+def barycentric_2d(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Barycentric weights (q, 3) float64 of points ``p`` in triangles (``a``, ``b``, ``c``), all (q, 2).
+
+    Degenerate triangles get (1, 0, 0).
+    """
+    v0, v1, v2 = b - a, c - a, p - a
+    d00 = (v0 * v0).sum(1)
+    d01 = (v0 * v1).sum(1)
+    d11 = (v1 * v1).sum(1)
+    d20 = (v2 * v0).sum(1)
+    d21 = (v2 * v1).sum(1)
+    det = d00 * d11 - d01 * d01
+    ok = np.abs(det) > 1e-30
+    safe = np.where(ok, det, 1.0)
+    w1 = np.where(ok, (d11 * d20 - d01 * d21) / safe, 0.0)
+    w2 = np.where(ok, (d00 * d21 - d01 * d20) / safe, 0.0)
+    return np.column_stack([1.0 - w1 - w2, w1, w2])
+
+
+def segment_distance_2d(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(q,) float64 distance from points ``p`` to segments (``a``, ``b``), all (q, 2)."""
+    ab = b - a
+    t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
+@dataclass
+class UVLocation:
+    """Where texture coordinates lie in a mesh's atlas.
+
+    Attributes:
+        face: (q,) int64 face of the mesh.
+        barycentric: (q, 3) float64 weights of its corners (each in [0, 1], summing to 1).
+        distance: (q,) float64 distance from the query to that face, UV units (0 inside it).
+    """
+
+    face: np.ndarray
+    barycentric: np.ndarray
+    distance: np.ndarray
+
+
+class UVIndex:
+    """A mesh's UV triangles laid in the plane z = 0, prepared for point location (build once, query often)."""
+
+    def __init__(self, mesh: TexturedMesh):
+        if not mesh.has_uv:
+            raise ValueError("the mesh has no texture coordinates")
+        self.mesh = mesh
+        lifted = np.column_stack([mesh.UV, np.zeros(len(mesh.UV))])
+        self.surface = prepare_surface(lifted, mesh.F_uv, origin=np.array([0.5, 0.5, 0.0]), find_boundary=False)
+
+    def locate(self, uv: np.ndarray) -> UVLocation:
+        """Locate texture coordinates ``uv`` (q, 2) float64 (OBJ convention) in the mesh's UV triangles: the
+        closest triangle, the query's float64 barycentrics in it (clipped to the triangle outside the atlas)."""
+        uv = np.asarray(uv, dtype=np.float64)
+        hit = self.surface.closest(np.column_stack([uv, np.zeros(len(uv))]))
+        tri = self.mesh.UV[self.mesh.F_uv[hit.face]]
+        raw = barycentric_2d(uv, tri[:, 0], tri[:, 1], tri[:, 2])
+        bary = np.clip(raw, 0.0, 1.0)
+        bary /= bary.sum(axis=1, keepdims=True)
+        distance = np.zeros(len(uv))
+        outside = (raw < 0).any(axis=1)
+        if outside.any():  # float64 distance to the face's nearest edge
+            p, t = uv[outside], tri[outside]
+            distance[outside] = np.min([segment_distance_2d(p, t[:, k], t[:, (k + 1) % 3]) for k in range(3)], axis=0)
+        return UVLocation(hit.face, bary, distance)
+
+
+def locate_uv(mesh: TexturedMesh, uv: np.ndarray) -> UVLocation:
+    """Locate texture coordinates ``uv`` (q, 2) float64 in ``mesh``'s UV triangles (:class:`UVIndex`, built once)."""
+    return UVIndex(mesh).locate(uv)
+
+
+def positions_at_uv(mesh: TexturedMesh, location: UVLocation) -> np.ndarray:
+    """(q, 3) float64 positions (mm) of located texture coordinates on ``mesh``'s surface."""
+    return np.einsum("qk,qkc->qc", location.barycentric, mesh.V[mesh.F[location.face]])
+
+
+def locate_on_atlas(mesh: TexturedMesh, uv: np.ndarray, source: str | Path, what: str,
+                    index: UVIndex | None = None) -> UVLocation:
+    """Locate texture coordinates ``uv`` (q, 2) that must lie in ``mesh``'s atlas (the mesh keeps the template's
+    parametrisation, whose atlas every one of them lies in).
+
+    Raises:
+        InputError: ``mesh`` (named ``source``) is unusable, has no UVs, or misses one of ``uv`` (described by
+            ``what``, e.g. "of the common triangulation") by more than :data:`UV_OFF_ATLAS`.
+    """
+    mesh.validate(source)
+    if not mesh.has_uv:
+        raise InputError(source, "the mesh has no texture coordinates: it must keep the template's UVs")
+    location = (index or UVIndex(mesh)).locate(uv)
+    off = float(location.distance.max(initial=0.0))
+    if off > UV_OFF_ATLAS:
+        worst = int(np.argmax(location.distance))
+        raise InputError(source, f"texture coordinate {np.round(uv[worst], 6).tolist()} {what} is {off:.2g} UV units "
+                                 "outside the mesh's atlas: the mesh does not share the template's texture "
+                                 "parametrisation")
+    return location
+
+
+@dataclass
+class Remeshed:
+    """An expression on the common triangulation.
+
+    Attributes:
+        mesh: V (n, 3) float64 mm, and the common triangulation's F, UV, F_uv.
+        seam_disagreement_mm: the largest 3-D distance between the positions a seam vertex's charts give.
+        off_atlas_uv: the largest distance (UV units) from a common texture coordinate to the mesh's atlas.
+    """
+
+    mesh: TexturedMesh
+    seam_disagreement_mm: float
+    off_atlas_uv: float
+
+
+def remesh_onto(common: TexturedMesh, mesh: TexturedMesh, source: str | Path = "mesh",
+                index: UVIndex | None = None) -> Remeshed:
+    """Put ``mesh`` (an expression with the template's parametrisation) on the ``common`` triangulation.
+
+    Every texture coordinate of ``common`` is located in ``mesh``'s atlas (:func:`locate_uv`); each vertex
+    of ``common`` takes the mean of the positions its corners' texture coordinates give.
+
+    Args:
+        index: ``UVIndex(mesh)``, when the caller keeps one.
+    Raises:
+        InputError: ``mesh`` (named ``source``) has no UVs, its atlas does not cover the common texture
+            coordinates (another parametrisation), or a seam's charts disagree.
+    """
+    location = locate_on_atlas(mesh, common.UV, source, "of the common triangulation", index)
+    at_uv = positions_at_uv(mesh, location)  # (k, 3): one position per common texture coordinate
+    n = len(common.V)
+    corners_v, corners_uv = common.F.ravel(), common.F_uv.ravel()
+    # each (vertex, uv) pair once: a seam vertex has one per chart
+    pairs = np.unique(np.column_stack([corners_v, corners_uv]), axis=0)
+    counts = np.bincount(pairs[:, 0], minlength=n).astype(np.float64)
+    if (counts == 0).any():
+        raise ValueError(f"{int((counts == 0).sum())} vertices of the common triangulation are in no face")
+    V = np.zeros((n, 3))
+    np.add.at(V, pairs[:, 0], at_uv[pairs[:, 1]])
+    V /= counts[:, None]
+    disagreement = float(np.linalg.norm(at_uv[pairs[:, 1]] - V[pairs[:, 0]], axis=1).max(initial=0.0))
+    if disagreement > SEAM_AGREEMENT_MM:
+        raise InputError(source, f"the charts of a seam vertex put it {disagreement:.3g} mm apart (more than "
+                                 f"{SEAM_AGREEMENT_MM:g} mm): the mesh's seams do not follow the template's")
+    return Remeshed(TexturedMesh(V, common.F, common.UV, common.F_uv), disagreement, float(location.distance.max(initial=0.0)))
+
+
+def edge_uv_midpoints(mesh: TexturedMesh) -> np.ndarray:
+    """(e, 2) float64: for each edge of ``unique_edges(mesh.F)``, the texture coordinate of its midpoint
+    (in the chart of one face that has it; a seam edge's charts map the midpoint to one 3-D point)."""
+    edges, face_edge = unique_edges(mesh.F)
+    mid = np.zeros((len(edges), 2))
+    corner_uv = mesh.UV[mesh.F_uv]  # (m, 3, 2)
+    for k in range(3):
+        mid[face_edge[:, k]] = 0.5 * (corner_uv[:, k] + corner_uv[:, (k + 1) % 3])
+    return mid
+
+
+def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequence[TexturedMesh],
+                 indices: Mapping[str, UVIndex] | None = None) -> np.ndarray:
+    """(e,) float64 mm: per edge of the common triangulation, the largest distance over ``meshes`` (by name, or a
+    sequence) between the point its texture midpoint lands on and the midpoint of its two remeshed ends (the
+    straight edge's deviation from the surface it stands for). ``indices``: their :class:`UVIndex` by name."""
+    if not isinstance(meshes, Mapping):
+        meshes = {f"mesh {i}": m for i, m in enumerate(meshes)}
+    edges, _ = unique_edges(common.F)
+    mid_uv = edge_uv_midpoints(common)
+    worst = np.zeros(len(edges))
+    for name, mesh in meshes.items():
+        index = (indices or {}).get(name) or UVIndex(mesh)
+        ends = remesh_onto(common, mesh, name, index).mesh.V
+        on_surface = positions_at_uv(mesh, index.locate(mid_uv))
+        chord = 0.5 * (ends[edges[:, 0]] + ends[edges[:, 1]])
+        worst = np.maximum(worst, np.linalg.norm(on_surface - chord, axis=1))
+    return worst
+
+
+def fit_triangulation(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequence[TexturedMesh],
+                      tolerance_mm: float,
+                      max_vertices: int, max_rounds: int = 8,
+                      progress: Callable[[str], None] = print) -> TexturedMesh:
+    """Split the common triangulation's edges whose chord misses any expression's surface by more than
+    ``tolerance_mm`` (:func:`chord_errors`), round after round, until none is left, ``max_rounds`` have run, or
+    the next round would pass ``max_vertices`` (then the worst edges are split up to it).
+
+    A round splits the bad edges alone (each triangle's red-green template), which converges where a
+    surface is smooth. Where an expression's surface is folded (crumpled parts no camera saw), the edges a
+    red-green split makes (midpoint to opposite corner) cross the fold as the split one did, and the count of
+    bad edges stalls; once a round leaves more than :data:`STALLED` of the previous round's bad edges, the next rounds
+    split every edge of a face that has a bad edge (1-to-4), which halves the edges across the fold each round.
+    """
+    if not isinstance(meshes, Mapping):
+        meshes = {f"mesh {i}": m for i, m in enumerate(meshes)}
+    indices = {name: UVIndex(mesh) for name, mesh in meshes.items()}
+    previous = None
+    for round_ in range(max_rounds):
+        errors = chord_errors(common, meshes, indices)
+        split = errors > tolerance_mm
+        count = int(split.sum())
+        stalled = previous is not None and count > STALLED * previous
+        progress(f"round {round_ + 1}: {len(common.V)} vertices, chord error max {errors.max():.3f} mm, "
+                 f"{count} edges above {tolerance_mm:g} mm" + ("; splitting their faces 1-to-4" if stalled else ""))
+        previous = count
+        if stalled:
+            _, face_edge = unique_edges(common.F)
+            split = np.zeros_like(split)
+            split[face_edge[(errors[face_edge] > tolerance_mm).any(axis=1)].ravel()] = True
+        room = max_vertices - len(common.V)
+        if not split.any() or room <= 0:
+            break
+        if split.sum() > room:  # the worst edges, as many as fit
+            keep = np.argsort(-np.where(split, errors, -1.0))[:room]
+            split = np.zeros_like(split)
+            split[keep] = True
+        common = split_edges(common, split)[0]
+    return common
