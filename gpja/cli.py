@@ -305,6 +305,8 @@ def _named_paths(items: list[str], option: str) -> dict[str, str]:
         name, sep, path = item.partition("=")
         if not sep or not name or not path:
             raise InputError(option, f"expected NAME=PATH, got {item!r}")
+        if name in out:
+            raise InputError(option, f"{name!r} is given twice ({out[name]} and {path})")
         out[name] = path
     return out
 

@@ -14,6 +14,8 @@ The output is written atomically and depends only on the frames (and the encoder
 """
 from __future__ import annotations
 
+import sys
+
 import warnings
 from pathlib import Path
 from typing import Callable, Sequence
@@ -176,7 +178,10 @@ def render_frames(frames: Sequence[np.ndarray], F: np.ndarray, UV: np.ndarray, F
         raise ValueError(f"background must lie in [0, 1], got {background}")
     keep = _KeepCoverage(render or render_views)
     out = np.empty((len(frames), len(cameras), height, width, 3), dtype=np.float32)
-    for i, V in enumerate(tqdm(frames, desc="rendering frames", unit="frame", disable=not progress)):
+    # in a log file (no terminal) a line every 10 s, not one per frame
+    bar = tqdm(frames, desc="rendering frames", unit="frame", disable=not progress,
+               mininterval=0.1 if sys.stderr.isatty() else 10.0)
+    for i, V in enumerate(bar):
         mesh = TexturedMesh(np.asarray(V, dtype=np.float64), F, UV, F_uv)
         color = render_with_texture(mesh, texture, cameras, sh, keep)
         out[i] = np.clip(color + bg * (1.0 - keep.coverage), 0.0, 1.0)

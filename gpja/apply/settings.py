@@ -16,7 +16,9 @@ class RemeshSettings:
     Attributes:
         initial_vertices: the template refined uniformly (by edge length) to this many vertices first.
         tolerance_mm: then, round after round, every edge whose chord misses an expression's surface by more
-            than this is split at its midpoint (:func:`gpja.apply.remesh.fit_triangulation`).
+            than this at its midpoint is split there (:func:`gpja.apply.remesh.fit_triangulation`). Inside a face
+            the deviation can reach about 4/3 of it (a quadratic surface: 1/4 of the face's sag at an edge's
+            midpoint, 1/3 at its centroid); the remesh logs record the deviation measured.
         max_vertices: the common triangulation never grows beyond this.
         max_rounds: at most this many splitting rounds.
     """

@@ -174,7 +174,13 @@ def animate(paths: Mapping[str, str | Path], settings: AnimationSettings, templa
     from gpja.io import read_image
     from gpja.results import read_template_lighting
 
-    meshes = read_remeshed({name: paths[name] for name in dict.fromkeys(settings.sequence) if name in paths})
+    if Path(output).suffix.lower() != ".mp4":
+        raise InputError(output, "a video is written as MP4: the file name must end in .mp4")
+    missing = [name for name in dict.fromkeys(settings.sequence) if name not in paths]
+    if missing:
+        raise InputError("applications.animation.sequence", f"expression(s) {', '.join(missing)} of the sequence have "
+                                                            f"no remeshed mesh (given: {', '.join(paths) or 'none'})")
+    meshes = read_remeshed({name: paths[name] for name in dict.fromkeys(settings.sequence)})
     frames, labels = sequence_positions({k: m.V for k, m in meshes.items()}, settings.sequence,
                                         settings.frames_per_transition, "applications.animation.sequence")
     first = next(iter(meshes.values()))
@@ -221,17 +227,20 @@ def artist_mesh(template_dir: str | Path, settings: ReparamSettings, subject: st
     return log
 
 
-def observed_faces(template_dir: str | Path, vertex_uv: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """(m,) bool: the faces ``F`` (m, 3) whose centroid, at the template texture coordinates ``vertex_uv`` (n, 2) of
-    their vertices, lies on a texel some camera of the template expression saw (``texture_observed.png``)."""
+def observed_faces(template_dir: str | Path, template: TexturedMesh, points: np.ndarray) -> np.ndarray:
+    """(q,) bool: whether the template texel at each point's closest template point was seen by some camera of
+    the template expression (``texture_observed.png``). ``points``: (q, 3) float64 mm, e.g. face centroids of a
+    mesh in the template expression's frame (a centroid, not its vertices' texture coordinates averaged: a face
+    may straddle a seam)."""
+    from gpja.apply.reparam import template_uv_of_points
     from gpja.io import read_image
     from gpja.results import OBSERVED_TEXELS_FILE
 
     mask = read_image(Path(template_dir) / OBSERVED_TEXELS_FILE, mode="L") > 0.5
-    size = mask.shape[0]
-    uv = vertex_uv[F].mean(axis=1)
-    col = np.clip((uv[:, 0] * size).astype(int), 0, size - 1)
-    row = np.clip(((1.0 - uv[:, 1]) * size).astype(int), 0, size - 1)
+    height, width = mask.shape
+    uv = template_uv_of_points(template, points)
+    col = np.clip((uv[:, 0] * width).astype(int), 0, width - 1)
+    row = np.clip(((1.0 - uv[:, 1]) * height).astype(int), 0, height - 1)
     return mask[row, col]
 
 
@@ -258,7 +267,7 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
     distance = prepare_surface(source.V, source.F, find_boundary=False).closest(carried.V).distance
     flipped = flipped_faces(artist.V, carried.V, artist.F)
     # the same count over the faces whose template texel some camera saw (not the socket, not under the chin)
-    observed = observed_faces(template_dir, template_uv, artist.F)
+    observed = observed_faces(template_dir, template, artist.V[artist.F].mean(axis=1))
     flipped_observed = flipped_faces(artist.V, carried.V, artist.F[observed])
     sh = read_template_lighting(template_dir)
     shared = read_image(Path(template_dir) / "texture.png")
