@@ -248,10 +248,12 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
                   output: str | Path, progress: Callable[[str], None] = print) -> dict:
     """The artist mesh carried onto one expression's registered mesh (its faces, UVs and texture kept), with its
     checks in the log: distance to the expression's surface, triangles flipped against the artist mesh as
-    modelled, and the PSNR of its render (artist texture) against the registered mesh's (shared texture)."""
+    modelled, and the PSNR of its render (artist texture) against the registered mesh's (shared texture), under
+    white light (the texture's check) and under the estimated lighting."""
     from gpja.apply.reparam import artist_on_template, carry_to_expression, flipped_faces
     from gpja.camera import framing_camera
     from gpja.io import read_image
+    from gpja.lighting import uniform_sh
     from gpja.metrics.photometric import masked_psnr, render_with_texture
     from gpja.results import read_template_lighting
     from gpja.surface import prepare_surface
@@ -269,13 +271,16 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
     # the same count over the faces whose template texel some camera saw (not the socket, not under the chin)
     observed = observed_faces(template_dir, template, artist.V[artist.F].mean(axis=1))
     flipped_observed = flipped_faces(artist.V, carried.V, artist.F[observed])
-    sh = read_template_lighting(template_dir)
     shared = read_image(Path(template_dir) / "texture.png")
     camera = framing_camera(source.V, CHECK_RENDER_SIZE)
-    ours = render_with_texture(carried, artist.texture, [camera], sh)[0]
-    theirs = render_with_texture(source, shared, [camera], sh)[0]
-    head = (ours.sum(-1) > 0) & (theirs.sum(-1) > 0)
-    psnr = float(masked_psnr(ours, theirs, head))
+    # the texture's check under uniform white light (the albedo as rendered), and the same under the estimated
+    # lighting, where the coarser artist surface also shades differently
+    psnr = {}
+    for name, sh in (("psnr_db", uniform_sh(1.0)), ("lit_psnr_db", read_template_lighting(template_dir))):
+        ours = render_with_texture(carried, artist.texture, [camera], sh)[0]
+        theirs = render_with_texture(source, shared, [camera], sh)[0]
+        head = (ours.sum(-1) > 0) & (theirs.sum(-1) > 0)
+        psnr[name] = round(float(masked_psnr(ours, theirs, head)), 3)
     write_obj(output, TexturedMesh(carried.V, carried.F, carried.UV, carried.F_uv),
               texture_name=os.path.relpath(Path(artist_path).parent / "texture.png", Path(output).parent))
     log = {"expression": expression, "source": str(mesh_path), "artist_mesh": str(artist_path),
@@ -283,10 +288,11 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
                                                                  "median": float(np.median(distance))},
            "flipped_faces_against_artist": int(flipped), "flipped_observed_faces": int(flipped_observed),
            "observed_faces": int(observed.sum()),
-           "render": {"psnr_db": round(psnr, 3), "pixels": int(head.sum()), "size_px": CHECK_RENDER_SIZE},
+           "render": {**psnr, "pixels": int(head.sum()), "size_px": CHECK_RENDER_SIZE},
            "seconds": round(time.perf_counter() - start, 2)}
     write_json(Path(output).with_suffix(".json"), log)
     progress(f"reparametrize: {expression}: {len(carried.V)} vertices, max {distance.max():.2e} mm off the "
              f"registered surface, {flipped} faces flipped against the artist mesh ({flipped_observed} of "
-             f"the {int(observed.sum())} on observed texels), render PSNR {psnr:.1f} dB")
+             f"the {int(observed.sum())} on observed texels), render PSNR {psnr['psnr_db']:.1f} dB "
+             f"(texture, white light), {psnr['lit_psnr_db']:.1f} dB (estimated lighting)")
     return log
