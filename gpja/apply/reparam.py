@@ -31,9 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gpja.apply.remesh import UVLocation, locate_on_atlas, locate_uv, positions_at_uv
+from gpja.apply.remesh import locate_on_atlas, positions_at_uv
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh
+from gpja.render.rasterize import BACKGROUND
+from gpja.render.uv_raster import rasterize_uv
 from gpja.surface import prepare_surface
 
 #: The artist mesh's bounding-box diagonal over the template's must lie in this range; outside it the mesh is
@@ -44,9 +46,6 @@ UNITS_RATIO_RANGE = (0.5, 2.0)
 ARTIST_MAX_MEDIAN_MM = 1.0
 #: The 95th percentile of that distance may be at most this, mm (an artist may reshape a few parts: ears, hair).
 ARTIST_MAX_P95_MM = 5.0
-#: A texel centre is inside the artist's atlas when :func:`gpja.apply.remesh.locate_uv` puts it this close to
-#: a UV triangle (UV units): inside a triangle the distance is float64 rounding only (~1e-17).
-TEXEL_INSIDE_UV = 1e-9
 #: Side of the atlas xatlas packs the stand-in's charts into, texels (it picks the texel density to match).
 STANDIN_ATLAS_RESOLUTION = 1024
 #: Gap xatlas leaves around each chart of the stand-in, texels of that atlas: at a 256-texel texture still
@@ -234,27 +233,19 @@ def carry_to_expression(artist: TexturedMesh, template_uv: np.ndarray, expressio
 
 # --- the shared texture in the artist's layout ----------------------------------------------------------
 
-def texel_centres(size: int) -> np.ndarray:
-    """(size * size, 2) float64 texture coordinates (OBJ convention) of the texel centres of a (size, size)
-    image, row-major: texel (r, c) is entry ``r * size + c``, at u = (c + 0.5) / size, v = 1 - (r + 0.5) / size
-    (row 0 at the top, v near 1)."""
-    rows, cols = np.mgrid[0:size, 0:size]
-    return np.column_stack([(cols.ravel() + 0.5) / size, 1.0 - (rows.ravel() + 0.5) / size])
-
-
 def sample_texture_np(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``texture`` (T_h, T_w, C) at ``uv`` (q, 2) (OBJ convention): (q, C) float32.
+    """Bilinear samples of ``texture`` (T, T, C) at ``uv`` (q, 2) (OBJ convention): (q, C) float32.
 
-    The renderer's convention (``gpja.render.texture.sample_texture``): texel (r, c) centred at
-    u = (c + 0.5) / T_w, v = 1 - (r + 0.5) / T_h, the border texel repeated outside. The lookup is
+    The renderer's convention (``gpja.render.texture.sample_texture``; ``gpja.render.uv_raster.uv_to_texel``):
+    texel (r, c) centred at u = (c + 0.5) / T, v = 1 - (r + 0.5) / T, the border texel repeated outside. The lookup is
     ``gpja.register.texture_fill.sample_bilinear`` (OpenCV ``remap``: positions rounded to 1/32 texel).
     """
     from gpja.register.texture_fill import sample_bilinear
+    from gpja.render.uv_raster import uv_to_texel
 
-    h, w = texture.shape[:2]
-    uv = np.asarray(uv, dtype=np.float64)
-    xy = np.column_stack([uv[:, 0] * w - 0.5, (1.0 - uv[:, 1]) * h - 0.5])
-    return sample_bilinear(np.ascontiguousarray(texture, dtype=np.float32), xy)
+    if texture.shape[0] != texture.shape[1]:
+        raise ValueError(f"texture must be square, got {texture.shape[:2]}")
+    return sample_bilinear(np.ascontiguousarray(texture, dtype=np.float32), uv_to_texel(uv, texture.shape[0]))
 
 
 def dilate(values: np.ndarray, known: np.ndarray, rounds: int) -> np.ndarray:
@@ -283,8 +274,8 @@ def resample_texture(artist: TexturedMesh, template: TexturedMesh, texture: np.n
                      padding: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """The shared texture (the template's atlas) resampled into the artist's UV layout.
 
-    For every texel centre of a (size, size) image (:func:`texel_centres`: row 0 at the top), inside one of
-    the artist's UV triangles (``locate_uv`` within :data:`TEXEL_INSIDE_UV`): its 3-D point on the artist mesh,
+    For every texel centre of a (size, size) image (row 0 at the top) inside one of the artist's UV triangles
+    (``gpja.render.uv_raster.rasterize_uv``, the texture fusion's texel rasteriser): its 3-D point on the artist mesh,
     that point's closest template point and its template texture coordinate (:func:`template_uv_of_points`),
     where ``texture`` is sampled bilinearly (:func:`sample_texture_np`: the renderer's convention, so the artist
     mesh rendered with the result shows what the template rendered with ``texture`` shows). Texels outside every
@@ -311,15 +302,11 @@ def resample_texture(artist: TexturedMesh, template: TexturedMesh, texture: np.n
         raise ValueError(f"texture must be (T, T, 3), got {texture.shape}")
     if size < 1 or padding < 0:
         raise ValueError(f"size must be positive and padding non-negative, got {size} and {padding}")
-    location = locate_uv(artist, texel_centres(size))
-    covered = location.distance < TEXEL_INSIDE_UV
-    inside = UVLocation(location.face[covered], location.barycentric[covered], location.distance[covered])
-    points = positions_at_uv(artist, inside)  # (N, 3) mm on the artist mesh
-    values = np.zeros((size * size, 3), dtype=np.float32)
-    if covered.any():
-        values[covered] = sample_texture_np(texture, template_uv_of_points(template, points))
-    covered = covered.reshape(size, size)
-    return dilate(values.reshape(size, size, 3), covered, padding), covered
+    texels = rasterize_uv(artist.UV, artist.F_uv, size)  # every texel centre inside an artist UV triangle
+    points = texels.surface(artist.V, artist.F)  # (N, 3) mm on the artist mesh
+    values = texels.scatter(sample_texture_np(texture, template_uv_of_points(template, points)), fill=0.0)
+    covered = texels.face_image != BACKGROUND
+    return dilate(values, covered, padding), covered
 
 
 # --- quality --------------------------------------------------------------------------------------------

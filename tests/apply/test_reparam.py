@@ -10,7 +10,7 @@ from scipy import ndimage
 
 from gpja.apply.reparam import (
     ARTIST_MAX_MEDIAN_MM, artist_on_template, carry_to_expression, check_artist_mesh, flipped_faces,
-    make_standin_artist_mesh, resample_texture, template_uv_of_points, texel_centres, uv_signed_areas,
+    make_standin_artist_mesh, resample_texture, template_uv_of_points, uv_signed_areas,
 )
 from gpja.apply.remesh import locate_uv, positions_at_uv
 from gpja.errors import InputError
@@ -50,6 +50,13 @@ N_LAT, N_LON = 16, 24  # rings between the poles, segments around: 386 positions
 STANDIN_FACES = 300
 TEXTURE = 64  # side of the shared texture, texels
 ARTIST_TEXTURE = 96  # side of the resampled one (not a multiple: texel centres fall between the shared texels)
+
+
+def texel_centres(size: int) -> np.ndarray:
+    """(size * size, 2) texture coordinates of a (size, size) image's texel centres, row-major, row 0 at the top:
+    u = (c + 0.5) / size, v = 1 - (r + 0.5) / size."""
+    rows, cols = np.mgrid[0:size, 0:size]
+    return np.column_stack([(cols.ravel() + 0.5) / size, 1.0 - (rows.ravel() + 0.5) / size])
 
 
 def latlong_sphere() -> TexturedMesh:
