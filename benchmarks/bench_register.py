@@ -66,6 +66,37 @@ def shared_texture_psnr(mesh, texture: np.ndarray, targets) -> float:
     return float(np.mean([masked_psnr(r, i, m) for r, i, m in zip(renders, targets.images.numpy(), masks) if m.any()]))
 
 
+def accuracy_scorer(args, template_dir: Path):
+    """A function scoring a registered mesh against the synthetic ground truth (None without one): C.D.
+    (the metrics' L1 Chamfer, mm) and the dense correspondence (median, mean, p95 and the mouth's median,
+    mm). A benchmark may read the ground truth; the registration it times never does."""
+    import tempfile
+
+    gt_root = Path(args.data) / "ground_truth"
+    if not (gt_root / args.subject / f"{args.expression}.npz").exists():
+        return None
+    from gpja.mesh import read_ply, write_obj
+    from gpja.metrics.correspondence import correspondence_error_files
+    from gpja.metrics.geometry import evaluate_geometry
+
+    scans_root = Path(args.data) / "scans"
+    scan_V, scan_F = read_ply(scans_root / args.subject / f"{args.expression}.ply")
+
+    def score(mesh) -> dict:
+        geometry = evaluate_geometry(mesh.V, mesh.F, scan_V, scan_F)
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "registered.obj"
+            write_obj(path, mesh, texture_name=None)
+            corr = correspondence_error_files(path, template_dir / "template.obj", scans_root, gt_root,
+                                              args.subject, args.expression)
+        mouth = (corr.get("regions") or {}).get("mouth") or {}
+        return {"chamfer_l1_mm": round(geometry.chamfer_l1_mm, 4),
+                "correspondence_mm": {k: round(corr[k], 3) for k in ("median_mm", "mean_mm", "p95_mm")},
+                "mouth_median_mm": None if mouth.get("median_mm") is None else round(mouth["median_mm"], 3)}
+
+    return score
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", choices=["default", "paper"], default="default")
@@ -148,10 +179,12 @@ def level_entry(lv: dict) -> dict:
             "seconds_by_stage": lv["seconds_by_stage"]}
 
 
-def time_alternately(cases: dict, repeats: int, data) -> tuple[dict, dict]:
+def time_alternately(cases: dict, repeats: int, data, score=None) -> tuple[dict, dict]:
     """Run each case (name -> callable returning ``(mesh, log)``) in turn, ``repeats`` times round.
 
-    Returns per-case runs (seconds, flow stage and level times, scan-to-mesh) and median seconds.
+    Returns per-case runs (seconds; per flow stage and level its time and, for a level, where it went:
+    solve, render, backward; scan-to-mesh; with ``score`` (:func:`accuracy_scorer`) its accuracy) and
+    median seconds.
     """
     import statistics
 
@@ -160,10 +193,13 @@ def time_alternately(cases: dict, repeats: int, data) -> tuple[dict, dict]:
         for name, run in cases.items():
             t0 = time.perf_counter()
             mesh, log = run()
-            runs[name].append({"seconds": round(time.perf_counter() - t0, 2),
-                               "levels": [{"level": e["level"], "seconds": e["seconds"]}
-                                          for e in map(level_entry, log.levels)],
-                               "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F)})
+            entry = {"seconds": round(time.perf_counter() - t0, 2),
+                     "levels": [{k: e[k] for k in ("level", "vertices", "seconds", "seconds_by_stage") if k in e}
+                                for e in map(level_entry, log.levels)],
+                     "scan_to_mesh_mm": scan_to_mesh_mm(data.scan.V, mesh.V, mesh.F)}
+            if score is not None:
+                entry["accuracy"] = score(mesh)
+            runs[name].append(entry)
     return runs, {k: statistics.median(r["seconds"] for r in v) for k, v in runs.items()}
 
 
@@ -180,7 +216,8 @@ def compare_schedules(args, start_mesh, mask, targets, schedules: dict, data) ->
         return lambda: register(start_mesh, mask, targets, schedule, Switches(),
                                 progress=lambda m: print(m, file=sys.stderr))
 
-    runs, medians = time_alternately({name: case(s) for name, s in schedules.items()}, args.repeats, data)
+    runs, medians = time_alternately({name: case(s) for name, s in schedules.items()}, args.repeats, data,
+                                     accuracy_scorer(args, Path(args.results) / args.subject / "template"))
     print(json.dumps({"benchmark": "register_settings", "subject": args.subject, "expression": args.expression,
                       "start": args.start or "template", "compared_settings": json.loads(args.compare_settings),
                       "threads": args.threads, "repeats": args.repeats, "runs": runs, "median_seconds": medians,

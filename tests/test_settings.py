@@ -38,13 +38,15 @@ NON_DEFAULT = {
                           "warmup_geometry": True, "optimizer_state": "per_constraint",
                           "hold_tangential": 0.05, "hold_moved_mm": [0.5, 3.0], "hold_gap_mm": [0.3, 1.5], "spring_rate": 0.2, "flow_rounds": 3,
                           "flow_levels": 2, "flow_smoothness": 12.0, "color_gradient": "tangential",
-                          "flow_still_mm": 0.7, "average_iterations": 6},
+                          "flow_still_mm": 0.7, "average_iterations": 6, "views_per_iteration": [3, 2, 0, 5],
+                          "image_factor": [4, 2, 1, 1], "seed": 7},
     "registration.paper": {"lambdas": [40, 30], "iterations": [1, 2], "refine_factor": 3.0,
                            "lr_fraction": 0.7, "lr_decay": 0.2, "color_pool": [4, 1], "warmup_iterations": 5,
                            "warmup_geometry": True, "optimizer_state": "per_constraint",
                            "hold_tangential": 0.05, "hold_moved_mm": [0.5, 3.0], "hold_gap_mm": [0.3, 1.5], "spring_rate": 0.2, "flow_rounds": 1,
                            "flow_levels": 2, "flow_smoothness": 50.0, "color_gradient": "tangential",
-                           "flow_still_mm": 0.4, "average_iterations": 3},
+                           "flow_still_mm": 0.4, "average_iterations": 3, "views_per_iteration": [2, 0],
+                           "image_factor": [2, 1], "seed": 3},
     "baselines.nicp.settings": {"steps": [[0.5, 0.25, 3]], "gamma": 2.0, "max_distance_mm": 4.0,
                                 "max_normal_angle_deg": 45.0, "reject_boundary": False, "convergence_mm": 0.5,
                                 "rigid_iterations": 3, "rigid_keep": 0.5, "similarity": True},
@@ -205,7 +207,7 @@ def test_every_field_is_settable_from_config(key):
         assert got == as_config_value(v), (k, got, v)
         assert got != as_config_value(read_back(default, k)), f"{key}.{k}: pick a non-default value"
     for k, v in values.items():  # one at a time, too: no key depends on another being set
-        if k not in ("lambdas", "iterations", "color_pool"):
+        if k not in ("lambdas", "iterations", "color_pool", "views_per_iteration", "image_factor"):  # one entry per level
             assert as_config_value(read_back(cls.from_config({k: v}, key), k)) == as_config_value(v)
 
 

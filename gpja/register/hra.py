@@ -66,6 +66,43 @@ class ExpressionTargets:
     coverage: torch.Tensor
     sh: torch.Tensor
 
+    def views(self, index: Sequence[int]) -> "ExpressionTargets":
+        """The targets of the views ``index`` (B' view indices, in this order): a random subset per
+        iteration (``Schedule.views_per_iteration``). Every loss is a mean over the pixels it counts, so
+        its scale does not depend on how many views are rendered."""
+        idx = torch.as_tensor(list(index), dtype=torch.long)
+        return ExpressionTargets([self.cameras[int(i)] for i in idx], self.images[idx], self.depth[idx],
+                                 self.normal[idx], self.coverage[idx], self.sh)
+
+    def downsampled(self, factor: int) -> "ExpressionTargets":
+        """The targets at ``1 / factor`` of the resolution (``Schedule.image_factor``): every image
+        box-averaged over ``factor x factor`` pixels and each camera resized to match.
+
+        The scan targets are antialiased blends with the background (depth = coverage x the surface's
+        depth, module docstring), so their box averages are the blends a ``factor``-times coarser
+        render makes: ``depth / coverage`` stays the covered pixels' mean depth.
+
+        Args:
+            factor: integer >= 1 dividing the image's width and height (1 = these targets).
+        Returns:
+            targets of (B, H / factor, W / factor, C) each, cameras ``Camera.resized`` to that size.
+        """
+        import torch.nn.functional as F
+
+        factor = int(factor)
+        if factor == 1:
+            return self
+        height, width = self.images.shape[1:3]
+        if factor < 1 or height % factor or width % factor:
+            raise ValueError(f"image factor {factor} must be >= 1 and divide the image size {width} x {height}")
+
+        def pool(t: torch.Tensor) -> torch.Tensor:
+            return F.avg_pool2d(t.permute(0, 3, 1, 2), factor).permute(0, 2, 3, 1).contiguous()
+
+        cameras = [c.resized(width // factor, height // factor) for c in self.cameras]
+        return ExpressionTargets(cameras, pool(self.images), pool(self.depth), pool(self.normal),
+                                 pool(self.coverage), self.sh)
+
 
 @dataclass(frozen=True)
 class Switches:

@@ -134,6 +134,15 @@ class Schedule:
             steps instead of the last one (0 = the last, the paper; beyond the paper). Uniform Adam keeps
             every vertex moving by about a step to the end of a level, so the last iterate lies a random
             fraction of a step from where the iterates settle; their mean does not.
+        views_per_iteration: per level, how many of the views each iteration renders (0 = all, the paper;
+            None = all at every level; beyond the paper, for speed). Each constraint cycles through the
+            views in random order (:class:`ViewCycle`, seeded by ``seed``), so over a level every view
+            counts equally often for every constraint.
+        image_factor: per level, the references and scan targets are box-averaged by this factor and the
+            cameras resized (1 = the data's resolution, the paper; None = 1 at every level; beyond the
+            paper, for speed): a coarse level's edges span several pixels, so it loses little at half the
+            resolution and renders a quarter of the pixels (``ExpressionTargets.downsampled``).
+        seed: seeds the view order of ``views_per_iteration`` (the config's; same seed, same numbers).
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -155,6 +164,9 @@ class Schedule:
     flow_still_mm: float = FlowSettings.still_mm
     color_gradient: str = "full"
     average_iterations: int = 0
+    views_per_iteration: tuple[int, ...] | None = None
+    image_factor: tuple[int, ...] | None = None
+    seed: int = 0
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -171,6 +183,14 @@ class Schedule:
                                             or any(int(p) < 1 for p in self.color_pool)):
             raise ValueError(f"color_pool needs one entry >= 1 per level ({len(self.lambdas)}), "
                              f"got {list(self.color_pool)}")
+        if self.views_per_iteration is not None and (len(self.views_per_iteration) != len(self.lambdas)
+                                                     or any(int(v) < 0 for v in self.views_per_iteration)):
+            raise ValueError(f"views_per_iteration needs one entry >= 0 per level ({len(self.lambdas)}; 0 = all "
+                             f"views), got {list(self.views_per_iteration)}")
+        if self.image_factor is not None and (len(self.image_factor) != len(self.lambdas)
+                                              or any(int(f) < 1 for f in self.image_factor)):
+            raise ValueError(f"image_factor needs one entry >= 1 per level ({len(self.lambdas)}), "
+                             f"got {list(self.image_factor)}")
         if int(self.warmup_iterations) < 0:
             raise ValueError(f"warmup_iterations must be >= 0, got {self.warmup_iterations}")
         if self.optimizer_state not in OPTIMIZER_STATES:
@@ -211,6 +231,14 @@ class Schedule:
         """The colour constraint's pooling box (px) at ``level``."""
         return 1 if self.color_pool is None else int(self.color_pool[level])
 
+    def views(self, level: int) -> int:
+        """How many views an iteration of ``level`` renders (0 = all)."""
+        return 0 if self.views_per_iteration is None else int(self.views_per_iteration[level])
+
+    def factor(self, level: int) -> int:
+        """The image downsampling factor of ``level`` (1 = the data's resolution)."""
+        return 1 if self.image_factor is None else int(self.image_factor[level])
+
     def learning_rate(self, base: float, iteration: int, n_iterations: int) -> float:
         """The step of ``iteration`` of a level whose first step is ``base`` (geometric decay)."""
         return base * self.lr_decay ** (iteration / max(n_iterations - 1, 1))
@@ -224,6 +252,43 @@ class RegistrationLog:
 
     def to_json(self) -> dict:
         return {"levels": self.levels}
+
+
+class ViewCycle:
+    """Which views each iteration renders, when it renders ``per_iteration`` of ``n_views``.
+
+    Every constraint draws its views from its own queue of seeded random permutations of all the
+    views, ``per_iteration`` at a time and never one twice in a draw, so over ``n_views`` draws of
+    a constraint each view is used ``per_iteration`` times: a stochastic gradient over the views
+    whose every view counts equally (paired with ``Schedule.average_iterations``, which averages out
+    the last steps' noise).
+    """
+
+    def __init__(self, n_views: int, per_iteration: int, seed: int, level: int) -> None:
+        self.n_views = int(n_views)
+        self.per_iteration = min(int(per_iteration), self.n_views) if per_iteration else self.n_views
+        self.rng = np.random.default_rng([int(seed), int(level)])
+        self.queues: dict[str, list[int]] = {}
+
+    @property
+    def all_views(self) -> bool:
+        return self.per_iteration >= self.n_views
+
+    def draw(self, constraint: str) -> list[int]:
+        """The next ``per_iteration`` distinct view indices for ``constraint``, sorted."""
+        if self.all_views:
+            return list(range(self.n_views))
+        queue = self.queues.setdefault(constraint, [])
+        if len(queue) < self.per_iteration:
+            queue.extend(int(i) for i in self.rng.permutation(self.n_views))
+        chosen: list[int] = []
+        k = 0
+        while len(chosen) < self.per_iteration:
+            if queue[k] in chosen:  # a view left from the last permutation comes again in the new one
+                k += 1
+                continue
+            chosen.append(queue.pop(k))
+        return sorted(chosen)
 
 
 def mean_edge_length(mesh: TexturedMesh) -> float:
@@ -275,7 +340,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     if warmup:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
-                                     warmup_switches(switches, schedule), schedule, 1, **common)
+                                     warmup_switches(switches, schedule), schedule, 1, level=-1, **common)
         log.levels.append({"stage": "warmup", **entry})
         if on_stage is not None:
             on_stage("warmup", mesh)
@@ -296,7 +361,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
             mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage,
                               f"flow{level + 1}")
         mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter, switches,
-                                     schedule, schedule.pool(level), hold=hold, **common)
+                                     schedule, schedule.pool(level), hold=hold, level=level, **common)
         entry["seconds"] = round(entry["seconds"] + refine_s, 3)
         entry["setup_seconds"] = round(entry["setup_seconds"] + refine_s, 3)
         log.levels.append({"stage": "level", "level": level, **entry})
@@ -358,16 +423,22 @@ def constraint_optimizers(param: LargeStepsParametrization, rotation: tuple[str,
 def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switches: Switches,
                    schedule: Schedule, pool: int, *, targets: ExpressionTargets, texture: torch.Tensor,
                    mask_texture: torch.Tensor, render, cull_backfaces: bool, progress: Callable[[str], None],
-                   progress_every: int, hold: TangentialHold | None = None) -> tuple[TexturedMesh, dict]:
+                   progress_every: int, hold: TangentialHold | None = None, level: int = 0) -> tuple[TexturedMesh, dict]:
     """``n_iter`` LargeSteps iterations on one fixed topology; returns the mesh and the level's log entry.
 
     ``name`` labels progress lines and errors ("level 2/3", "warm-up"). The first step is
     ``schedule.lr_fraction`` x this mesh's mean edge length (mm), decaying as the schedule says.
     ``render``: as in :func:`optimise` (None = the CPU renderer). ``hold``: the tangential hold on
-    this mesh's vertices, applied before every iteration's render (None = none, the paper).
+    this mesh's vertices, applied before every iteration's render (None = none, the paper). ``level``: the
+    schedule's level (0-based; -1 = the warm-up, which runs at the first level's images and views) for
+    ``Schedule.image_factor`` and ``views_per_iteration``.
     """
     start = time.perf_counter()
     rotation = switches.rotation()
+    settings_level = max(level, 0)
+    factor = schedule.factor(settings_level)
+    targets = targets.downsampled(factor)
+    cycle = ViewCycle(len(targets.cameras), schedule.views(settings_level), schedule.seed, level + 1)
     lr = schedule.lr_fraction * mean_edge_length(mesh)
     param = LargeStepsParametrization(mesh.V, mesh.F, lam)
     optimizers = constraint_optimizers(param, rotation, lr, schedule.optimizer_state)
@@ -398,7 +469,8 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
             position_sum = x.detach().double() + (0.0 if position_sum is None else position_sum)
         if constraint == "color" and schedule.color_gradient == "tangential":
             x = along_surface(x, topo.faces)
-        loss, _ = render_constraint(constraint, x, topo, targets, switches, uv, texture, mask_texture,
+        seen = targets if cycle.all_views else targets.views(cycle.draw(constraint))
+        loss, _ = render_constraint(constraint, x, topo, seen, switches, uv, texture, mask_texture,
                                     render=render, cull_backfaces=cull_backfaces, color_pool=pool)
         value = loss.detach().item()
         if not math.isfinite(value):
@@ -423,6 +495,8 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
         final = last if position_sum is None else (position_sum + last) / averaged
         mesh = mesh.with_vertices(final.numpy())
     return mesh, {"lambda": lam, "iterations": n_iter, "learning_rate_mm": lr, "color_pool": pool,
+                  "image_factor": factor, "image_size": list(targets.images.shape[1:3]),
+                  "views_per_iteration": cycle.per_iteration,
                   "averaged_iterations": max(averaged, 1),
                   "vertices": int(len(mesh.V)), "faces": int(len(mesh.F)),
                   "seconds": round(time.perf_counter() - start, 3), "setup_seconds": round(setup_s, 3),

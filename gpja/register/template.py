@@ -94,7 +94,8 @@ class TemplateSettings:
                                metadata={HIDDEN: ("color_pool", "warmup_iterations", "warmup_geometry", "optimizer_state",
                                                    "hold_tangential", "hold_moved_mm", "hold_gap_mm", "spring_rate", "flow_rounds",
                                                    "flow_levels", "flow_smoothness", "flow_still_mm", "color_gradient",
-                                                   "average_iterations")})
+                                                   "average_iterations", "views_per_iteration", "image_factor",
+                                                   "seed")})
     texture_method: str = "fusion"
     texture_size: int = 1024
     texture_size_from_images: bool = True

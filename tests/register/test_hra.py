@@ -1,3 +1,4 @@
+import numpy as np
 import pytest
 import torch
 
@@ -5,6 +6,7 @@ from gpja.lighting import uniform_sh
 from gpja.register.hra import ExpressionTargets, Switches, constraint_loss, passes_for
 from gpja.render import Topology, render_views
 from tests.render.scenes import ring_cameras, sphere, spherical_uv
+from tests.tolerances import EXACT_F64
 
 #: What is left of a radial gradient after the projection on a level-3 sphere: its area-weighted vertex normals are
 #: within a fraction of a degree of radial (unit gradient, so this is sin of that angle).
@@ -152,3 +154,44 @@ def test_along_surface_gradient_is_the_tangential_projection_of_the_plain_one():
     n = vertex_normals(x.detach(), faces)
     torch.testing.assert_close(x.grad + (plain * n).sum(1, keepdim=True) * n, plain)
     assert (x.grad * n).sum(1).abs().max() < 1e-9
+
+
+def test_views_picks_the_targets_of_the_given_views_in_order():
+    _, _, _, _, targets = setup(size=16)
+    picked = targets.views([1, 0])
+    assert [c.name for c in picked.cameras] == [targets.cameras[1].name, targets.cameras[0].name]
+    for name in ("images", "depth", "normal", "coverage"):
+        torch.testing.assert_close(getattr(picked, name)[0], getattr(targets, name)[1])
+        torch.testing.assert_close(getattr(picked, name)[1], getattr(targets, name)[0])
+    assert picked.sh is targets.sh
+
+
+def test_downsampled_targets_are_the_box_averages_a_coarser_render_makes():
+    # analytic: the box average of the full-resolution targets, and the cameras resized so that a
+    # point lands at (x + 0.5) / f - 0.5 of its full-resolution pixel position
+    _, _, _, _, targets = setup(size=48)
+    half = targets.downsampled(2)
+    assert half.images.shape == (2, 24, 24, 3) and half.coverage.shape == (2, 24, 24, 1)
+    torch.testing.assert_close(half.depth[0, 5, 7], targets.depth[0, 10:12, 14:16].mean(dim=(0, 1)))
+    torch.testing.assert_close(half.images[1, 3, 9], targets.images[1, 6:8, 18:20].mean(dim=(0, 1)))
+    X = np.array([[3.0, -7.0, 11.0], [20.0, 5.0, -9.0]])
+    full_px, _ = targets.cameras[0].project(X)
+    half_px, _ = half.cameras[0].project(X)
+    np.testing.assert_allclose(half_px, (full_px + 0.5) / 2 - 0.5, atol=EXACT_F64)
+    assert (half.cameras[0].width, half.cameras[0].height) == (24, 24)
+    # identity: factor 1 is the targets themselves
+    assert targets.downsampled(1) is targets
+    # a coarser render scores the true surface lower than one scaled by 2 % either way against the
+    # downsampled scan targets (their outline blends differ from the coarse render's, so not 0)
+    Vt, topo, uv, tex, targets = setup(size=96)
+    half = targets.downsampled(2)
+    for constraint in ("depth", "normal"):
+        true, smaller, larger = (loss_of(constraint, Vt * s, topo, uv, tex, half, Switches(), torch.ones(8, 8, 1)).item()
+                                 for s in (1.0, 0.98, 1.02))
+        assert true < min(smaller, larger), (constraint, true, smaller, larger)
+
+
+def test_downsampled_refuses_a_factor_that_does_not_divide_the_image():
+    _, _, _, _, targets = setup(size=16)
+    with pytest.raises(ValueError, match="divide the image size"):
+        targets.downsampled(3)

@@ -4,7 +4,7 @@ import torch
 
 from gpja.mesh import TexturedMesh, unique_edges
 from gpja.register.hra import ExpressionTargets, Switches
-from gpja.register.multiscale import RegistrationDiverged, Schedule, optimise
+from gpja.register.multiscale import RegistrationDiverged, Schedule, ViewCycle, optimise
 from gpja.render import render_scan_targets
 from tests.render.scenes import sphere, spherical_uv
 from tests.render.test_passes import surface_distance, tetrahedral_cameras
@@ -315,3 +315,60 @@ def test_springs_alone_start_with_the_first_flow_stage_and_keep_the_sphere_spaci
         return float(np.mean(np.abs(now - rest) / rest))
 
     assert strain(sprung) < 0.85 * strain(free)  # measured: 0.046 -> 0.035
+
+
+@pytest.mark.parametrize("n_views, per_iteration", [(8, 4), (8, 3), (5, 2)])
+def test_view_cycle_draws_distinct_views_each_equally_often(n_views, per_iteration):
+    cycle = ViewCycle(n_views, per_iteration, seed=3, level=1)
+    draws = [cycle.draw("color") for _ in range(n_views * 6)]
+    assert all(len(set(d)) == per_iteration and d == sorted(d) for d in draws)
+    counts = np.bincount(np.concatenate(draws), minlength=n_views)
+    # over k permutations each view comes k times; the draws cover k - 1 to k + 1 permutations' worth
+    assert counts.max() - counts.min() <= 2, counts
+    # the same seed and level give the same order; another constraint has its own queue
+    again = ViewCycle(n_views, per_iteration, seed=3, level=1)
+    assert [again.draw("color") for _ in range(n_views * 6)] == draws
+    assert ViewCycle(n_views, per_iteration, seed=4, level=1).draw("color") != draws[0] or \
+        ViewCycle(n_views, per_iteration, seed=4, level=1).draw("color") != draws[1]
+
+
+def test_view_cycle_with_all_views_or_zero_renders_every_view():
+    for per_iteration in (0, 8, 12):
+        cycle = ViewCycle(8, per_iteration, seed=0, level=0)
+        assert cycle.all_views and cycle.draw("depth") == list(range(8))
+
+
+def test_schedule_checks_the_speed_settings():
+    with pytest.raises(ValueError, match="views_per_iteration"):
+        Schedule(lambdas=(10.0, 5.0), iterations=(5, 5), views_per_iteration=(4,))
+    with pytest.raises(ValueError, match="image_factor"):
+        Schedule(lambdas=(10.0,), iterations=(5,), image_factor=(0,))
+    schedule = Schedule(lambdas=(10.0, 5.0), iterations=(5, 5), views_per_iteration=(2, 0), image_factor=(2, 1))
+    assert [schedule.views(k) for k in (0, 1)] == [2, 0] and [schedule.factor(k) for k in (0, 1)] == [2, 1]
+
+
+def test_all_views_at_full_resolution_is_the_paper_schedule_exactly():
+    # identity: 0 views (all) and factor 1 per level give the same iterates as the settings left unset
+    _, _, targets = ellipsoid_targets(size=32)
+    kw = dict(texture=torch.ones(4, 4, 3), mask_texture=torch.ones(4, 4, 1), progress_every=0)
+    plain = optimise(start_mesh(), targets, Switches(color=False), Schedule(lambdas=(20.0,), iterations=(6,)), **kw)[0]
+    explicit = Schedule(lambdas=(20.0,), iterations=(6,), views_per_iteration=(0,), image_factor=(1,), seed=9)
+    np.testing.assert_array_equal(optimise(start_mesh(), targets, Switches(color=False), explicit, **kw)[0].V, plain.V)
+
+
+def test_a_subset_of_views_at_half_resolution_still_registers():
+    # regression of the speed levers (issue 17): 2 of the 4 views per iteration at half the resolution
+    # in the first level still cut the Chamfer distance as the full schedule must, and the log says so
+    Vt, Ft, targets = ellipsoid_targets()
+    mesh = start_mesh()
+    schedule = Schedule(lambdas=(20.0, 10.0), iterations=(120, 120), lr_fraction=0.1, views_per_iteration=(2, 2),
+                        image_factor=(2, 1))
+    out, log = optimise(mesh, targets, Switches(color=False), schedule, texture=torch.ones(4, 4, 3),
+                        mask_texture=torch.ones(4, 4, 1), progress_every=0)
+    assert chamfer(mesh, Vt, Ft) / chamfer(out, Vt, Ft) >= MIN_CHAMFER_REDUCTION
+    assert [lvl["image_size"] for lvl in log.levels] == [[40, 40], [80, 80]]
+    assert [lvl["views_per_iteration"] for lvl in log.levels] == [2, 2]
+    # deterministic: the seed fixes the views
+    again, _ = optimise(mesh, targets, Switches(color=False), schedule, texture=torch.ones(4, 4, 3),
+                        mask_texture=torch.ones(4, 4, 1), progress_every=0)
+    np.testing.assert_array_equal(again.V, out.V)
