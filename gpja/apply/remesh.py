@@ -112,7 +112,13 @@ class UVLocation:
 
 
 class UVIndex:
-    """A mesh's UV triangles laid in the plane z = 0, prepared for point location (build once, query often)."""
+    """A mesh's UV triangles laid in the plane z = 0, prepared for point location (build once, query often).
+
+    It remembers what it located: :func:`fit_triangulation` asks every round for the texture coordinates
+    of a triangulation that only grows, whose new vertices are the last round's edge midpoints, so
+    after the first round only the new edges' midpoints are looked up (the answers are the same
+    either way: a location depends on the coordinate alone).
+    """
 
     def __init__(self, mesh: TexturedMesh):
         if not mesh.has_uv:
@@ -120,11 +126,32 @@ class UVIndex:
         self.mesh = mesh
         lifted = np.column_stack([mesh.UV, np.zeros(len(mesh.UV))])
         self.surface = prepare_surface(lifted, mesh.F_uv, origin=np.array([0.5, 0.5, 0.0]), find_boundary=False)
+        # located coordinates, as complex keys u + iv sorted, and their answers in the same order
+        self._keys = np.zeros(0, dtype=np.complex128)
+        self._known = UVLocation(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0))
 
     def locate(self, uv: np.ndarray) -> UVLocation:
         """Locate texture coordinates ``uv`` (q, 2) float64 (OBJ convention) in the mesh's UV triangles: the
-        closest triangle, the query's float64 barycentrics in it (clipped to the triangle outside the atlas)."""
-        uv = np.asarray(uv, dtype=np.float64)
+        closest triangle, the query's float64 barycentrics in it (clipped to the triangle outside the atlas).
+        Coordinates located before are answered from memory."""
+        uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 2)
+        keys = uv[:, 0] + 1j * uv[:, 1]
+        at = np.searchsorted(self._keys, keys).clip(max=max(len(self._keys) - 1, 0))
+        known = (self._keys[at] == keys) if len(self._keys) else np.zeros(len(keys), dtype=bool)
+        new_keys, first = np.unique(keys[~known], return_index=True)
+        if len(new_keys):
+            fresh = self._locate(uv[~known][first])
+            keys_all = np.concatenate([self._keys, new_keys])
+            order = np.argsort(keys_all, kind="stable")
+            self._keys = keys_all[order]
+            self._known = UVLocation(np.concatenate([self._known.face, fresh.face])[order],
+                                     np.concatenate([self._known.barycentric, fresh.barycentric])[order],
+                                     np.concatenate([self._known.distance, fresh.distance])[order])
+            at = np.searchsorted(self._keys, keys)
+        return UVLocation(self._known.face[at], self._known.barycentric[at], self._known.distance[at])
+
+    def _locate(self, uv: np.ndarray) -> UVLocation:
+        """:meth:`locate` without the memory."""
         hit = self.surface.closest(np.column_stack([uv, np.zeros(len(uv))]))
         tri = self.mesh.UV[self.mesh.F_uv[hit.face]]
         raw = barycentric_2d(uv, tri[:, 0], tri[:, 1], tri[:, 2])

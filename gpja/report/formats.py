@@ -2,7 +2,8 @@
 
 CSV: one row per value row of the table, numbers at full precision (``repr``), a missing value empty.
 Markdown: GitHub pipe tables, the caption bold, a block's title in italics when there are several, the
-notes after. LaTeX: one booktabs ``table`` float (``\\usepackage{booktabs}``), blocks separated by rules.
+notes after. LaTeX: one booktabs ``table`` float (``\\usepackage{booktabs}``), blocks separated by rules, a block
+narrower than the widest padded with empty cells.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ def latex_escape(text: str) -> str:
     """Plain text as LaTeX: specials escaped, arrows and the dash made LaTeX."""
     specials = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
                 "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
-                "↓": r"$\downarrow$", "↑": r"$\uparrow$", "→": r"$\rightarrow$", DASH: "--"}
+                "↓": r"$\downarrow$", "↑": r"$\uparrow$", "→": r"$\rightarrow$", "±": r"$\pm$", DASH: "--"}
     return "".join(specials.get(ch, ch) for ch in text)
 
 
@@ -74,8 +75,14 @@ def to_markdown(table: Table) -> str:
     return "\n".join(parts)
 
 
-def latex_block_header(block: Block) -> list[str]:
-    """The header line(s) of a block: spanning group labels with cmidrules, then the column headers."""
+def latex_line(cells: list[str], columns: int) -> str:
+    """One tabular line: ``cells``, then empty cells up to ``columns`` cells."""
+    return " & ".join(cells + [""] * (columns - len(cells))) + r" \\"
+
+
+def latex_block_header(block: Block, columns: int) -> list[str]:
+    """The header line(s) of a block in a tabular of ``columns`` columns: spanning group labels with cmidrules,
+    then the column headers."""
     lines = []
     if block.groups:
         cells, rules, col = [""] * block.label_columns, [], block.label_columns + 1
@@ -83,18 +90,17 @@ def latex_block_header(block: Block) -> list[str]:
             cells.append(rf"\multicolumn{{{span}}}{{c}}{{{latex_label(label)}}}")
             rules.append(rf"\cmidrule(lr){{{col}-{col + span - 1}}}")
             col += span
-        lines += [" & ".join(cells) + r" \\", " ".join(rules)]
-    lines.append(" & ".join(latex_label(h) for h in block.headers) + r" \\")
+        lines += [latex_line(cells, len(cells) + columns + 1 - col), " ".join(rules)]  # + columns after the groups
+    lines.append(latex_line([latex_label(h) for h in block.headers], columns))
     return lines
 
 
 def to_latex(table: Table) -> str:
-    """The table as a booktabs ``table`` float (needs ``\\usepackage{booktabs}``)."""
-    widths = {len(b.headers) for b in table.blocks}
-    if len(widths) != 1:
-        raise ValueError(f"table {table.name}: blocks differ in column count {sorted(widths)}")
+    """The table as a booktabs ``table`` float (needs ``\\usepackage{booktabs}``); one tabular as wide as the widest
+    block, its column types from the first block."""
+    columns = max(len(b.headers) for b in table.blocks)
     first = table.blocks[0]
-    spec = "l" * first.label_columns + "c" * (len(first.headers) - first.label_columns)
+    spec = "l" * first.label_columns + "c" * (columns - first.label_columns)
     lines = [f"% {table.name}: written by `gpja tables` (gpja/report/tables.py)"]
     lines += [f"% {note}" for note in table.notes]
     lines += [r"\begin{table}[t]", r"\centering", rf"\caption{{{latex_escape(table.caption)}}}",
@@ -102,11 +108,11 @@ def to_latex(table: Table) -> str:
     for i, block in enumerate(table.blocks):
         if i:
             lines.append(r"\midrule")
-        lines += latex_block_header(block) + [r"\midrule"]
+        lines += latex_block_header(block, columns) + [r"\midrule"]
         for j, row in enumerate(block.rows):
             if j in block.rules:
                 lines.append(r"\midrule")
-            lines.append(" & ".join(cell_latex(c) for c in row) + r" \\")
+            lines.append(latex_line([cell_latex(c) for c in row], columns))
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
     return "\n".join(lines) + "\n"
 

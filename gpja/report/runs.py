@@ -213,9 +213,24 @@ def mean_or_none(values: list[float]) -> float | None:
     return statistics.fmean(values) if values else None
 
 
+def sd_or_none(values: list[float]) -> float | None:
+    """Sample standard deviation (n - 1 denominator), None for fewer than 2 values."""
+    return statistics.stdev(values) if len(values) >= 2 else None
+
+
+def present(dicts: list[dict], name: str) -> list[float]:
+    """The values of ``name`` in the dicts that have one (not None), in order."""
+    return [d[name] for d in dicts if d.get(name) is not None]
+
+
 def means(dicts: list[dict], names) -> dict[str, float | None]:
     """Per name, the mean over the dicts that have a value for it (None where none has)."""
-    return {n: mean_or_none([d[n] for d in dicts if d.get(n) is not None]) for n in names}
+    return {n: mean_or_none(present(dicts, n)) for n in names}
+
+
+def sds(dicts: list[dict], names) -> dict[str, float | None]:
+    """Per name, the sample standard deviation over the dicts that have a value for it (None for fewer than 2)."""
+    return {n: sd_or_none(present(dicts, n)) for n in names}
 
 
 def subject_stats(run: Run, methods, names) -> dict[tuple[str, str], dict[str, float | None]]:

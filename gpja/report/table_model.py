@@ -34,14 +34,26 @@ Label = str | tuple[str, str]
 
 @dataclass
 class Cell:
-    """A number printed with ``digits`` decimals ("–" for None)."""
+    """A number printed with ``digits`` decimals ("–" for None), and with a spread ``sd`` (same unit) as
+    ``value ± sd`` at the same decimals."""
 
     value: float | None
     digits: int
     bold: bool = False
+    sd: float | None = None
+
+    def number(self, value: float) -> str:
+        """``value`` at this cell's decimals."""
+        return f"{value:.{self.digits}f}"
+
+    def printed(self) -> float:
+        """The value as printed (rounded to ``digits``): what bolding compares."""
+        return float(self.number(self.value))
 
     def text(self) -> str:
-        return DASH if self.value is None else f"{self.value:.{self.digits}f}"
+        if self.value is None:
+            return DASH
+        return self.number(self.value) if self.sd is None else f"{self.number(self.value)} ± {self.number(self.sd)}"
 
 
 @dataclass
@@ -76,13 +88,14 @@ class Table:
 
 
 def mark_best(block: Block) -> None:
-    """Bold the best printed value of each column with a ``better`` direction (ties all bolded)."""
+    """Bold the best printed value (the mean of a ``value ± sd`` cell) of each column with a ``better`` direction
+    (ties all bolded)."""
     for col, better in enumerate(block.better):
         if better is None:
             continue
         cells = [row[col] for i, row in enumerate(block.rows)
                  if i not in block.reference_rows and isinstance(row[col], Cell) and row[col].value is not None]
-        printed = [float(c.text()) for c in cells]
+        printed = [c.printed() for c in cells]
         if len(printed) < 2:
             continue
         best = min(printed) if better == "min" else max(printed)
@@ -95,9 +108,9 @@ def plural(n: int, noun: str) -> str:
     return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
-def metric_cell(value: float | None, name: str) -> Cell:
-    """A cell of metric ``name`` printed with the paper's decimals."""
-    return Cell(value, DIGITS[metric_family(name)])
+def metric_cell(value: float | None, name: str, sd: float | None = None) -> Cell:
+    """A cell of metric ``name`` printed with the paper's decimals; with ``sd`` (its unit) as ``value ± sd``."""
+    return Cell(value, DIGITS[metric_family(name)], sd=sd)
 
 
 def header(name: str) -> str:

@@ -17,9 +17,18 @@ Tables (file stem: content):
   (``gpja.methods`` kind ``reference``: the oracle, the ground truth rendered by our
   renderer) follow the methods as their own column group (CSV: rows with source
   ``reference``); they are in no other table.
-- ``ablation``: Table 3: GPJA and each ablation variant present, means over
-  every (subject, expression): the paper's geometric error (the scan-to-mesh,
-  "point of GT to mesh", distance in mm), C.D. (mm), PSNR, SSIM, LPIPS.
+- ``ablation``: Table 3: GPJA and each ablation variant present, mean ± sample
+  standard deviation (n - 1) over every (subject, expression) pair of the run
+  (the mean alone for one pair; the mean is what is bolded): the paper's
+  geometric error (the scan-to-mesh, "point of GT to mesh", distance in mm),
+  C.D. (mm), PSNR, SSIM, LPIPS (and the correspondence median/mean on
+  synthetic data). A second block, "Paired differences against full GPJA":
+  per variant and key metric (C.D., PSNR, the correspondence median/mean) the
+  mean of variant - GPJA over the pairs both are scored on, its seeded
+  percentile bootstrap 95 % interval (``BOOTSTRAP_SEED``; "–" below 2 pairs)
+  and "GPJA better in k of n". CSV: the means' rows gain ``<metric>_sd``
+  columns; rows with source ``paired_difference`` fill ``metric``,
+  ``mean_difference``, ``ci_low``, ``ci_high``, ``gpja_better``, ``pairs``.
 - ``correspondence`` (synthetic data only): mean/median/p95 of the
   correspondence error (mm) per subject and method, means over expressions.
 - ``correspondence_regions``, ``position_regions`` and ``texture`` (synthetic data only): the correspondence
@@ -37,7 +46,10 @@ CSV files are long format with full precision; a missing value is empty.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from gpja.errors import InputError
 from gpja.methods import label as method_label
@@ -64,6 +76,7 @@ from gpja.report.runs import (
     load_run,
     means,
     metric_family,
+    sds,
     subject_stats,
     with_floors,
 )
@@ -204,8 +217,124 @@ def photometric_table(run: Run, published: str | None = None, references: Run | 
 # Table 3: ablations
 
 
+#: The seed of Table 3's bootstrap intervals (:func:`bootstrap_interval`): the table is deterministic.
+BOOTSTRAP_SEED = 0
+#: Resamples (with replacement) of the bootstrap intervals.
+BOOTSTRAP_RESAMPLES = 2000
+#: Confidence level of the bootstrap intervals.
+BOOTSTRAP_LEVEL = 0.95
+#: Below about this many (subject, expression) pairs an ordering of Table 3's rows is not evidence (its notes).
+FEW_PAIRS = 5
+#: The metrics each variant is compared on pair by pair against GPJA (the correspondence ones where scored).
+PAIRED_NAMES = ("chamfer_l1_mm", "psnr", "correspondence_median_mm", "correspondence_mean_mm")
+#: Table 3's CSV columns of a paired difference (empty on the other rows).
+PAIRED_COLUMNS = ("metric", "mean_difference", "ci_low", "ci_high", "gpja_better", "pairs")
+
+
+def ablation_records(run: Run, name: str) -> list[dict]:
+    """Method ``name``'s flat metrics per (subject, expression) of ``run``, subject-major: Table 3's pairs."""
+    return [run.values[(s, name, e)] for s in run.subjects for e in run.expressions]
+
+
+def paired_differences(variant: list[dict], reference: list[dict], name: str) -> np.ndarray:
+    """``variant - reference`` of metric ``name`` (in its unit), shape (n,), over the pairs both have a value on.
+
+    ``variant``, ``reference``: flat metrics per (subject, expression), in the same order (:func:`ablation_records`).
+    """
+    return np.array([v[name] - r[name] for v, r in zip(variant, reference)
+                     if v.get(name) is not None and r.get(name) is not None], dtype=float)
+
+
+def bootstrap_interval(diffs, level: float = BOOTSTRAP_LEVEL, resamples: int = BOOTSTRAP_RESAMPLES,
+                       seed: int = BOOTSTRAP_SEED) -> tuple[float, float] | None:
+    """Percentile bootstrap interval ``(low, high)`` of the mean of ``diffs`` (shape (n,), any unit).
+
+    The ``(1 - level) / 2`` and ``(1 + level) / 2`` quantiles of the means of ``resamples`` resamples of the n values
+    with replacement, drawn by numpy ``default_rng(seed)`` (deterministic). None for fewer than 2 values.
+    """
+    diffs = np.asarray(diffs, dtype=float)
+    if diffs.size < 2:
+        return None
+    draws = np.random.default_rng(seed).integers(0, diffs.size, size=(resamples, diffs.size))
+    low, high = np.quantile(diffs[draws].mean(axis=1), [(1 - level) / 2, (1 + level) / 2])
+    return float(low), float(high)
+
+
+def wins(diffs, better: str) -> int:
+    """On how many pairs the reference is better, from ``diffs`` = variant - reference (shape (n,)).
+
+    ``better``: ``"min"`` (distances, LPIPS: the positive differences count) or ``"max"`` (PSNR, SSIM: the
+    negative ones), as in :data:`gpja.report.table_model.BETTER`; ties count for neither.
+    """
+    diffs = np.asarray(diffs, dtype=float)
+    return int(np.count_nonzero(diffs > 0 if better == "min" else diffs < 0))
+
+
+@dataclass
+class Paired:
+    """A variant against GPJA on one metric (its unit) over the ``pairs`` (subject, expression) both are scored on:
+    the mean of variant - GPJA (None without pairs), its :func:`bootstrap_interval` (None for fewer than 2 pairs)
+    and on how many pairs GPJA is better (:func:`wins`)."""
+
+    pairs: int
+    mean: float | None
+    interval: tuple[float, float] | None
+    gpja_better: int
+
+
+def paired(variant: list[dict], reference: list[dict], name: str) -> Paired:
+    """:class:`Paired` statistics of metric ``name``, ``variant`` against ``reference`` (:func:`paired_differences`)."""
+    diffs = paired_differences(variant, reference, name)
+    return Paired(int(diffs.size), float(diffs.mean()) if diffs.size else None, bootstrap_interval(diffs),
+                  wins(diffs, BETTER[metric_family(name)]))
+
+
+def signed(value: float | None, name: str) -> str:
+    """A difference of metric ``name`` with its sign, at the metric's decimals (``+0.012``; "–" for None)."""
+    if value is None:
+        return DASH
+    digits = metric_cell(value, name).digits
+    return f"{round(value, digits) + 0.0:+.{digits}f}"  # + 0.0: no "-0.000"
+
+
+def paired_block(stats: dict[tuple[str, str], Paired], labels: dict[str, str]) -> Block:
+    """Table 3's second block: per (variant, metric) of ``stats`` the mean difference against GPJA, its interval and
+    GPJA's wins; ``labels``: the metrics' column headers."""
+    rows = []
+    for (m, n), c in stats.items():
+        interval = DASH if c.interval is None else f"[{signed(c.interval[0], n)}, {signed(c.interval[1], n)}]"
+        rows.append([ablation_label(m), labels[n], signed(c.mean, n), interval, f"{c.gpja_better} of {c.pairs}"])
+    variants = list(dict.fromkeys(m for m, _ in stats))
+    per_variant = len(stats) // len(variants)
+    return Block(headers=["Variant", "Metric", "Mean difference (variant - GPJA)",
+                          f"{BOOTSTRAP_LEVEL:.0%} interval", "GPJA better in"],
+                 rows=rows, label_columns=2, rules={i * per_variant for i in range(1, len(variants))},
+                 title="Paired differences against full GPJA")
+
+
+def ablation_notes(run: Run, compared: bool) -> list[str]:
+    """What Table 3's ± and (with ``compared``: paired differences shown) its intervals are, and how few pairs
+    are too few."""
+    pairs = len(run.subjects) * len(run.expressions)
+    notes = [(f"Mean ± sample standard deviation (n - 1 denominator) over the n = {pairs} (subject, expression) "
+              f"pairs ({plural(len(run.subjects), 'subject')} x {plural(len(run.expressions), 'expression')}; fewer "
+              "where a pair has no value); with a single value, the value alone. "
+              "Geometric error: the scan-to-mesh (point of the scan to mesh) distance, as in the paper; "
+              "C.D.: L1 Chamfer distance.")]
+    if compared:
+        notes.append(f"Paired differences: variant - GPJA on each pair both are scored on; their mean, its "
+                     f"{BOOTSTRAP_LEVEL:.0%} percentile bootstrap interval over the pairs ({BOOTSTRAP_RESAMPLES} "
+                     f"resamples, seed {BOOTSTRAP_SEED}; {DASH} with fewer than 2 pairs) and on how many of the n "
+                     "pairs GPJA is better (lower distance, higher PSNR; ties count for neither).")
+    notes.append(f"With fewer than about {FEW_PAIRS} pairs (here {pairs}) an ordering of the rows is not evidence, "
+                 "and a bootstrap interval from so few values is crude (it never reaches beyond the smallest and "
+                 "largest difference).")
+    return notes
+
+
 def ablation_table(run: Run, published: str | None = None) -> Table:
-    """Table 3: GPJA and its ablation variants, means over every (subject, expression) of the run."""
+    """Table 3: GPJA and its ablation variants, mean ± sample SD over every (subject, expression) of the run, and
+    each variant's paired differences against GPJA on :data:`PAIRED_NAMES`."""
     variants = ablation_methods(run.methods)
     if not variants:
         raise InputError("--methods", "the ablation table needs gpja or an ablation variant (gpja-no_*)")
@@ -214,9 +343,10 @@ def ablation_table(run: Run, published: str | None = None) -> Table:
     scored = [n for n in ("correspondence_median_mm", "correspondence_mean_mm")
               if any(v.get(n) is not None for v in run.values.values())]
     names += scored
-    stats = {m: means([run.values[(s, m, e)] for s in run.subjects for e in run.expressions], names)
-             for m in variants}
-    rows = [[ablation_label(m)] + [metric_cell(stats[m][n], n) for n in names] for m in variants]
+    records = {m: ablation_records(run, m) for m in variants}
+    stats = {m: means(records[m], names) for m in variants}
+    spread = {m: sds(records[m], names) for m in variants}
+    rows = [[ablation_label(m)] + [metric_cell(stats[m][n], n, spread[m][n]) for n in names] for m in variants]
     paper = {m: dict(zip(PAPER_ABLATION_KEYS, v)) for m, v in PUBLISHED_ABLATION.items()} if published else {}
     reference = [[paper_label(ablation_label(m))] + [metric_cell(v.get(n), n) for n in names] for m, v in paper.items()]
     rules = ({1} if variants[0] == "gpja" and len(variants) > 1 else set()) | ({len(rows)} if reference else set())
@@ -224,23 +354,28 @@ def ablation_table(run: Run, published: str | None = None) -> Table:
     headers = [("Corr. " + header(n)[0].lower() + header(n)[1:]) if n in scored else header(n) for n in names]
     block = Block(headers=["Method"] + headers, rows=rows + reference, rules=rules,
                   reference_rows=set(range(len(rows), len(rows) + len(reference))),
-                  better=[None] + [BETTER[n] for n in names])
+                  better=[None] + [BETTER[n] for n in names], title="Mean ± SD over the (subject, expression) pairs")
     mark_best(block)
+    compared = [m for m in variants if m != "gpja"] if "gpja" in variants else []
+    versus = {(m, n): paired(records[m], records["gpja"], n) for m in compared for n in PAIRED_NAMES if n in names}
+    blocks = [block] + ([paired_block(versus, dict(zip(names, headers)))] if versus else [])
     pairs = len(run.subjects) * len(run.expressions)
-    csv_header = ["method", "source", "expressions", *names]
-    csv_rows = [[m, "reproduced", pairs, *[stats[m][n] for n in names]] for m in variants]
-    csv_rows += [[m, "paper", "", *[v.get(n) for n in names]] for m, v in paper.items()]
-    notes = [(f"Means over {plural(len(run.subjects), 'subject')} x {plural(len(run.expressions), 'expression')}. "
-              "Geometric error: the scan-to-mesh (point of the scan to mesh) distance, as in the paper; "
-              "C.D.: L1 Chamfer distance.")]
+    csv_header = ["method", "source", "expressions", *names, *[f"{n}_sd" for n in names], *PAIRED_COLUMNS]
+    blank, unpaired = [None] * len(names), [None] * len(PAIRED_COLUMNS)
+    csv_rows = [[m, "reproduced", pairs, *[stats[m][n] for n in names], *[spread[m][n] for n in names], *unpaired]
+                for m in variants]
+    csv_rows += [[m, "paper", "", *[v.get(n) for n in names], *blank, *unpaired] for m, v in paper.items()]
+    csv_rows += [[m, "paired_difference", "", *blank, *blank, n, c.mean, *(c.interval or (None, None)),
+                  c.gpja_better, c.pairs] for (m, n), c in versus.items()]
+    notes = ablation_notes(run, bool(versus))
     if paper:
         notes.append("(paper): Table 3 of the paper (FaceScape, four unnamed subjects; no C.D. given).")
     if scored:
         notes.append("Correspondence: median and mean error against the synthetic ground truth (mm).")
     caption = ("Ablations: geometric error (mm), C.D. (mm), PSNR (dB), SSIM and LPIPS of GPJA without each "
                "constraint, without the flow stage (gpja-no_flow), without the tangential hold (gpja-no_hold), and with the "
-               "paper's own schedule (gpja-paper).")
-    return Table("ablation", caption, [block], csv_header, csv_rows, notes)
+               "paper's own schedule (gpja-paper), and each variant's paired differences against GPJA.")
+    return Table("ablation", caption, blocks, csv_header, csv_rows, notes)
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ import pytest
 
 from gpja.apply import remesh as R
 from gpja.apply.remesh import (SEAM_AGREEMENT_MM, UV_OFF_ATLAS, barycentric_2d, chord_errors, common_triangulation,
-                               edge_uv_midpoints, fit_triangulation, locate_uv, positions_at_uv, remesh_onto)
+                               UVIndex, edge_uv_midpoints, fit_triangulation, locate_uv, positions_at_uv, remesh_onto)
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh, unique_edges
 from gpja.register.remesh import refine_by_factor
@@ -228,6 +228,21 @@ def test_locate_uv_finds_the_atlas_points(template, expression_rest):
     assert (locate_uv(template, np.array([[0.5, 0.01], [0.99, 0.5], [0.5, 0.99]])).distance > 0.03).all()
     with pytest.raises(ValueError, match="texture coordinates"):
         locate_uv(TexturedMesh(template.V, template.F), template.UV)
+
+
+def test_uv_index_answers_from_memory_what_a_fresh_index_answers(template, expression_rest):
+    # identity: overlapping, repeated and shuffled queries to one index give exactly the fresh answers
+    rng = np.random.default_rng(5)
+    uv = expression_rest.UV
+    first, second = uv[: len(uv) // 2], uv[rng.permutation(len(uv))]
+    queries = np.concatenate([second[:50], second[:50], [[0.5, 0.01]]])  # duplicates and a point off the atlas
+    index = UVIndex(template)
+    for query in (first, second, queries):
+        got, want = index.locate(query), UVIndex(template).locate(query)
+        np.testing.assert_array_equal(got.face, want.face)
+        np.testing.assert_array_equal(got.barycentric, want.barycentric)
+        np.testing.assert_array_equal(got.distance, want.distance)
+    assert len(index._keys) == len(np.unique(uv[:, 0] + 1j * uv[:, 1])) + 1  # each coordinate located once
 
 
 def distance_to_atlas(mesh: TexturedMesh, p: np.ndarray) -> float:

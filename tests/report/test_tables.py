@@ -59,10 +59,14 @@ def test_ablation_table_means_bolding_and_labels(tmp_path):
     run = load_run(res, ["S01", "S02"], ["gpja-no_normal", "gpja"], [E1])
     table = T.ablation_table(run)
     md = to_markdown(table)
-    assert md_row(md, "GPJA") == ["**0.050**", "**0.100**", "25.00", "**0.8000**", "**0.10000**"]
-    assert md_row(md, "w/o L_normal") == ["0.200", "0.400", "**26.00**", "0.7900", "0.12000"]
-    assert r"w/o $\mathcal{L}_{normal}$ & 0.200" in to_latex(table)
-    assert [r["method"] for r in read_csv_rows(to_csv(table))] == ["gpja", "gpja-no_normal"]
+    # 2 pairs: mean ± sample SD, the mean bolded
+    assert md_row(md, "GPJA") == ["**0.050 ± 0.000**", "**0.100 ± 0.000**", "25.00 ± 0.00", "**0.8000 ± 0.0000**",
+                                  "**0.10000 ± 0.00000**"]
+    assert md_row(md, "w/o L_normal") == ["0.200 ± 0.000", "0.400 ± 0.141", "**26.00 ± 0.00**", "0.7900 ± 0.0000",
+                                          "0.12000 ± 0.00000"]
+    assert r"w/o $\mathcal{L}_{normal}$ & 0.200 $\pm$ 0.000" in to_latex(table)
+    rows = read_csv_rows(to_csv(table))
+    assert [r["method"] for r in rows if r["source"] == "reproduced"] == ["gpja", "gpja-no_normal"]
     assert T.default_tables(run) == ["geometry", "photometric", "ablation", "timing"]
     assert T.comparison_methods(run.methods) == ["gpja"]
 
@@ -79,6 +83,113 @@ def test_ablation_table_gains_correspondence_columns_on_synthetic_data(tmp_path)
     plain = tmp_path / "plain"
     write_metrics(plain, "S01", "gpja", E1, cd=0.1, p2m=0.05, photo=(25.0, 0.80, 0.10))
     assert "Corr." not in to_markdown(T.ablation_table(load_run(plain, ["S01"], ["gpja"], [E1])))
+
+
+E3 = "3_mouth_open"
+
+
+def write_ablation(res, gpja: dict, variant: dict, method: str = "gpja-no_normal", subject: str = "S01"):
+    """GPJA's and ``method``'s metrics per expression: ``{expression: (C.D. mm, PSNR dB)}`` (SSIM, LPIPS fixed)."""
+    for name, values in (("gpja", gpja), (method, variant)):
+        for e, (cd, psnr) in values.items():
+            write_metrics(res, subject, name, e, cd=cd, photo=(psnr, 0.8, 0.1))
+
+
+def test_ablation_table_sd_and_paired_differences_analytic(tmp_path):
+    res = tmp_path / "results"
+    # C.D. differences 0.05, 0.15, 0.10 (mean 0.10, GPJA lower on all 3); PSNR differences +1, -1, +1 (mean 1/3,
+    # GPJA higher on 1)
+    write_ablation(res, {E1: (0.10, 24.0), E2: (0.20, 25.0), E3: (0.30, 26.0)},
+                   {E1: (0.15, 25.0), E2: (0.35, 24.0), E3: (0.40, 27.0)})
+    run = load_run(res, ["S01"], ["gpja", "gpja-no_normal"], [E1, E2, E3])
+    table = T.ablation_table(run)
+    md = to_markdown(table)
+    # SDs by hand: GPJA C.D. 0.1, PSNR 1; the variant's C.D. sqrt((0.15² + 0.05² + 0.1²) / 2) = sqrt(0.0175),
+    # PSNR sqrt(((1/3)² + (4/3)² + (5/3)²) / 2) = sqrt(7/3)
+    assert md_row(md, "GPJA") == ["**0.200 ± 0.100**", "**0.200 ± 0.100**", "25.00 ± 1.00", "**0.8000 ± 0.0000**",
+                                  "**0.10000 ± 0.00000**"]
+    assert md_row(md, "w/o L_normal") == ["0.300 ± 0.132", "0.300 ± 0.132", "**25.33 ± 1.53**",
+                                          "**0.8000 ± 0.0000**", "**0.10000 ± 0.00000**"]
+    assert "*Paired differences against full GPJA*" in md
+    cd_row, psnr_row = md_row(md, "w/o L_normal", 1), md_row(md, "w/o L_normal", 2)
+    assert cd_row[:2] == ["C.D. (mm) ↓", "+0.100"] and cd_row[3] == "3 of 3"
+    assert psnr_row[:2] == ["PSNR (dB) ↑", "+0.33"] and psnr_row[3] == "1 of 3"
+    rows = read_csv_rows(to_csv(table))
+    means = {r["method"]: r for r in rows if r["source"] == "reproduced"}
+    assert float(means["gpja"]["chamfer_l1_mm"]) == pytest.approx(0.2)
+    assert float(means["gpja"]["chamfer_l1_mm_sd"]) == pytest.approx(0.1)
+    assert float(means["gpja-no_normal"]["chamfer_l1_mm_sd"]) == pytest.approx(0.0175 ** 0.5)
+    assert float(means["gpja-no_normal"]["psnr_sd"]) == pytest.approx((7 / 3) ** 0.5)
+    assert means["gpja"]["expressions"] == "3" and means["gpja"]["metric"] == ""
+    paired = {r["metric"]: r for r in rows if r["source"] == "paired_difference"}
+    assert list(paired) == ["chamfer_l1_mm", "psnr"]  # no correspondence scores here
+    for name, diffs, better in (("chamfer_l1_mm", [0.05, 0.15, 0.10], 3), ("psnr", [1.0, -1.0, 1.0], 1)):
+        row = paired[name]
+        mean = sum(diffs) / 3
+        assert row["method"] == "gpja-no_normal" and row[name] == ""
+        assert float(row["mean_difference"]) == pytest.approx(mean)
+        assert (row["gpja_better"], row["pairs"]) == (str(better), "3")
+        low, high = float(row["ci_low"]), float(row["ci_high"])
+        assert min(diffs) - 1e-12 <= low <= mean <= high <= max(diffs) + 1e-12
+        assert low < high
+    assert "[" + f"{float(paired['chamfer_l1_mm']['ci_low']):+.3f}" in cd_row[2]
+    assert any("sample standard deviation" in n for n in table.notes)
+    assert any("bootstrap" in n and "2000 resamples" in n for n in table.notes)
+    assert any("fewer than about 5 pairs (here 3)" in n for n in table.notes)
+    tex = to_latex(table)
+    assert r"\textbf{0.200 $\pm$ 0.100}" in tex and r"& +0.100 & [" in tex
+    assert tex.count(r"\begin{tabular}{lccccc}") == 1
+
+
+def test_paired_statistics_functions():
+    variant = [{"psnr": 25.0}, {"psnr": 24.0}, {"psnr": None}, {"psnr": 27.0}]
+    reference = [{"psnr": 24.0}, {"psnr": 25.0}, {"psnr": 20.0}, {}]
+    assert T.paired_differences(variant, reference, "psnr").tolist() == [1.0, -1.0]  # pairs both scored
+    assert T.wins([1.0, -1.0, 0.0, 2.0], "max") == 1 and T.wins([1.0, -1.0, 0.0, 2.0], "min") == 2
+    assert T.bootstrap_interval([0.4]) is None and T.bootstrap_interval([]) is None
+    low, high = T.bootstrap_interval([0.0, 1.0, 2.0, 3.0])
+    assert 0.0 <= low < 1.5 < high <= 3.0
+    assert T.bootstrap_interval([0.0, 1.0, 2.0, 3.0]) == (low, high)  # seeded
+    assert T.bootstrap_interval([0.0, 1.0, 2.0, 3.0], level=0.5)[1] < high
+
+
+def test_ablation_table_identical_variant_has_zero_differences(tmp_path):
+    res = tmp_path / "results"
+    same = {E1: (0.10, 24.0), E2: (0.20, 25.0), E3: (0.30, 26.0)}
+    write_ablation(res, same, same, method="gpja-no_depth")
+    table = T.ablation_table(load_run(res, ["S01"], ["gpja", "gpja-no_depth"], [E1, E2, E3]))
+    md = to_markdown(table)
+    assert md_row(md, "w/o L_depth", 1) == ["C.D. (mm) ↓", "+0.000", "[+0.000, +0.000]", "0 of 3"]
+    assert md_row(md, "w/o L_depth", 2) == ["PSNR (dB) ↑", "+0.00", "[+0.00, +0.00]", "0 of 3"]
+    for row in (r for r in read_csv_rows(to_csv(table)) if r["source"] == "paired_difference"):
+        assert (float(row["mean_difference"]), float(row["ci_low"]), float(row["ci_high"])) == (0.0, 0.0, 0.0)
+        assert row["gpja_better"] == "0"
+
+
+def test_ablation_table_is_deterministic(tmp_path):
+    res = tmp_path / "results"
+    write_ablation(res, {E1: (0.10, 24.0), E2: (0.20, 25.0), E3: (0.30, 26.0)},
+                   {E1: (0.13, 25.0), E2: (0.35, 24.5), E3: (0.31, 27.0)}, method="gpja-paper")
+    run = load_run(res, ["S01"], ["gpja", "gpja-paper"], [E1, E2, E3])
+    first, second = T.ablation_table(run), T.ablation_table(run)
+    assert to_csv(first) == to_csv(second)
+    assert to_markdown(first) == to_markdown(second) and to_latex(first) == to_latex(second)
+
+
+def test_ablation_table_with_one_pair_has_no_sd_and_no_interval(tmp_path):
+    res = tmp_path / "results"
+    write_ablation(res, {E1: (0.10, 24.0)}, {E1: (0.30, 23.0)})
+    table = T.ablation_table(load_run(res, ["S01"], ["gpja", "gpja-no_normal"], [E1]))
+    md = to_markdown(table)
+    assert "±" not in "".join(line for line in md.splitlines() if line.startswith("|"))
+    assert md_row(md, "GPJA")[:3] == ["**0.100**", "**0.100**", "**24.00**"]
+    assert md_row(md, "w/o L_normal", 1) == ["C.D. (mm) ↓", "+0.200", "–", "1 of 1"]
+    assert md_row(md, "w/o L_normal", 2) == ["PSNR (dB) ↑", "-1.00", "–", "1 of 1"]
+    paired = [r for r in read_csv_rows(to_csv(table)) if r["source"] == "paired_difference"]
+    assert [(r["ci_low"], r["ci_high"], r["pairs"]) for r in paired] == [("", "", "1")] * 2
+    # GPJA alone: nothing to compare
+    alone = T.ablation_table(load_run(res, ["S01"], ["gpja"], [E1]))
+    assert len(alone.blocks) == 1 and "paired_difference" not in to_csv(alone)
 
 
 def test_published_facescape_numbers_beside_the_reproduced_ones(tmp_path):
