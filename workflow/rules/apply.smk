@@ -47,6 +47,7 @@ rule triangulate_subject:
     benchmark:
         bench_path("{subject}", "applications", "triangulate")
     threads: 1
+    priority: 10  # on the run's last chain (every GPJA registration of the subject -> this -> remesh -> export)
     resources:
         mem_mb=6000,
         runtime=20,

@@ -123,7 +123,9 @@ rule register_expression:
     # one thread each: two registrations side by side on 2 cores finish 1.37x sooner than one after the other
     # on 2 threads (README "Runtime"); --set-threads register_expression=2 speeds up a single expression
     threads: 1
-    priority: 10  # the longest jobs: start them as soon as they can run, let short ones fill the gaps
+    # the longest jobs: start them as soon as they can run, let short ones fill the gaps; GPJA's own before the
+    # ablation variants, since the subject's applications wait for every GPJA expression (the run's last chain)
+    priority: lambda wc: 10 if wc.method == "gpja" else 5
     resources:
         mem_mb=6000,
         runtime=30,
