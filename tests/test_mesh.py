@@ -121,3 +121,41 @@ def test_unique_edges_of_two_triangles_and_against_row_unique():
     ref, inverse = np.unique(half, axis=0, return_inverse=True)
     np.testing.assert_array_equal(edges, ref)
     np.testing.assert_array_equal(face_edge.ravel(), inverse.ravel())
+
+
+@pytest.mark.parametrize("faces", [
+    "f 1 2 3\nf 1 3 4\n",                       # v
+    "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n",           # v/vt
+    "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n",  # v/vt/vn
+    "f -4/-4 -3/-3 -2/-2\nf -4/-4 -2/-2 -1/-1\n",  # negative indices
+    "f 1//1 2//1 3//1\nf 1//1 3//1 4//1\n",     # v//vn: the line-by-line parser
+    "f 1/1 2/2 3/3 4/4\n",                      # a quad: the line-by-line parser
+    "f 1 2 3\nf 1 3 4 2\n",                      # a triangle then a quad
+])
+def test_obj_fast_and_line_by_line_parsers_agree(tmp_path, faces):
+    # identity: whichever parser reads the faces, the mesh is the one the line-by-line parser reads
+    import gpja.mesh as M
+
+    text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\n" + faces
+    (tmp_path / "m.obj").write_text(text)
+    mesh = read_obj(tmp_path / "m.obj")
+    lines = [(i, line) for i, line in enumerate(text.splitlines(), 1) if line.startswith("f ")]
+    F, F_uv = M._parse_faces(lines, tmp_path / "m.obj")
+    np.testing.assert_array_equal(mesh.F, M._resolve_index(F, 4))
+    if F_uv is None:
+        assert mesh.F_uv is None
+    else:
+        np.testing.assert_array_equal(mesh.F_uv, M._resolve_index(F_uv, 4))
+
+
+def test_obj_fast_parser_leaves_what_it_cannot_read_to_the_line_by_line_one(tmp_path):
+    import gpja.mesh as M
+
+    rows = [(1, "v 0 0 0 1"), (2, "v 1 0")]  # ragged: the same count of numbers, other rows
+    assert M._parse_numbers(rows, 2, 3, np.float64) is None
+    assert M._parse_numbers([(1, "v 0 0 x")], 2, 3, np.float64) is None
+    assert M._parse_triangles([(1, "f 1/1 2/2 3/3"), (2, "f 1/1 2/2 3/3 4/4")]) is None
+    np.testing.assert_array_equal(M._parse_numbers([(1, "v 1.5 -2 3e-3")], 2, 3, np.float64), [[1.5, -2, 3e-3]])
+    (tmp_path / "r.obj").write_text("v 0 0 0 1\nv 1 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(InputError, match="malformed coordinates"):
+        read_obj(tmp_path / "r.obj")
