@@ -41,7 +41,10 @@ def open_to_closed_config() -> dict:
     cfg["synthetic"].update(image_size=256, scan_voxel_mm=default["synthetic"]["scan_voxel_mm"])
     reg = cfg["registration"]
     reg["template"] = default["registration"]["template"]
-    reg["gpja"] = {**default["registration"]["gpja"], "lambdas": ci["registration"]["gpja"]["lambdas"],
+    levels = len(ci["registration"]["gpja"]["lambdas"])
+    per_level = {k: v[:levels] for k, v in default["registration"]["gpja"].items()  # the default's first levels
+                 if k in ("views_per_iteration", "image_factor", "color_pool") and v is not None}
+    reg["gpja"] = {**default["registration"]["gpja"], **per_level, "lambdas": ci["registration"]["gpja"]["lambdas"],
                    "iterations": ci["registration"]["gpja"]["iterations"]}
     reg["ablations"] = {"variants": ["gpja-paper"], "subjects": None, "expressions": [CLOSED]}
     cfg["baselines"]["nicp"]["enabled"] = False

@@ -79,6 +79,11 @@ class RegistrationDiverged(GpjaError):
     """The optimisation produced NaN or infinite values."""
 
 
+#: ``Schedule.image_factor`` never takes a level's images below this many pixels on their shorter side: at 256 px
+#: (about 2 mm a pixel on the default's heads) a half-size first level no longer closed the CI-sized open mouth
+#: (tests/test_open_to_closed.py: lower lip 5.3 mm against 3.5 mm at full size).
+MIN_IMAGE_SIDE_PX = 256
+
 #: ``Schedule.optimizer_state``: one Adam for the whole rotation, or one per constraint.
 OPTIMIZER_STATES = ("shared", "per_constraint")
 
@@ -141,7 +146,8 @@ class Schedule:
         image_factor: per level, the references and scan targets are box-averaged by this factor and the
             cameras resized (1 = the data's resolution, the paper; None = 1 at every level; beyond the
             paper, for speed): a coarse level's edges span several pixels, so it loses little at half the
-            resolution and renders a quarter of the pixels (``ExpressionTargets.downsampled``).
+            resolution and renders a quarter of the pixels (``ExpressionTargets.downsampled``). Never below
+            :data:`MIN_IMAGE_SIDE_PX` on the shorter side (:meth:`factor`).
         seed: seeds the view order of ``views_per_iteration`` (the config's; same seed, same numbers).
     """
 
@@ -235,9 +241,16 @@ class Schedule:
         """How many views an iteration of ``level`` renders (0 = all)."""
         return 0 if self.views_per_iteration is None else int(self.views_per_iteration[level])
 
-    def factor(self, level: int) -> int:
-        """The image downsampling factor of ``level`` (1 = the data's resolution)."""
-        return 1 if self.image_factor is None else int(self.image_factor[level])
+    def factor(self, level: int, height: int | None = None, width: int | None = None) -> int:
+        """The image downsampling factor of ``level`` (1 = the data's resolution); with the images' size, the
+        largest factor up to it that divides both sides and keeps the shorter one at least
+        :data:`MIN_IMAGE_SIDE_PX` (or at its size, if smaller)."""
+        factor = 1 if self.image_factor is None else int(self.image_factor[level])
+        if height is None or width is None:
+            return factor
+        while factor > 1 and (height % factor or width % factor or min(height, width) // factor < MIN_IMAGE_SIDE_PX):
+            factor -= 1
+        return factor
 
     def learning_rate(self, base: float, iteration: int, n_iterations: int) -> float:
         """The step of ``iteration`` of a level whose first step is ``base`` (geometric decay)."""
@@ -436,7 +449,7 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
     start = time.perf_counter()
     rotation = switches.rotation()
     settings_level = max(level, 0)
-    factor = schedule.factor(settings_level)
+    factor = schedule.factor(settings_level, *targets.images.shape[1:3])
     targets = targets.downsampled(factor)
     cycle = ViewCycle(len(targets.cameras), schedule.views(settings_level), schedule.seed, level + 1)
     lr = schedule.lr_fraction * mean_edge_length(mesh)

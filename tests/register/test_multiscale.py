@@ -356,9 +356,12 @@ def test_all_views_at_full_resolution_is_the_paper_schedule_exactly():
     np.testing.assert_array_equal(optimise(start_mesh(), targets, Switches(color=False), explicit, **kw)[0].V, plain.V)
 
 
-def test_a_subset_of_views_at_half_resolution_still_registers():
+def test_a_subset_of_views_at_half_resolution_still_registers(monkeypatch):
     # regression of the speed levers (issue 17): 2 of the 4 views per iteration at half the resolution
     # in the first level still cut the Chamfer distance as the full schedule must, and the log says so
+    from gpja.register import multiscale
+
+    monkeypatch.setattr(multiscale, "MIN_IMAGE_SIDE_PX", 16)  # the test's images are 80 px
     Vt, Ft, targets = ellipsoid_targets()
     mesh = start_mesh()
     schedule = Schedule(lambdas=(20.0, 10.0), iterations=(120, 120), lr_fraction=0.1, views_per_iteration=(2, 2),
@@ -372,3 +375,14 @@ def test_a_subset_of_views_at_half_resolution_still_registers():
     again, _ = optimise(mesh, targets, Switches(color=False), schedule, texture=torch.ones(4, 4, 3),
                         mask_texture=torch.ones(4, 4, 1), progress_every=0)
     np.testing.assert_array_equal(again.V, out.V)
+
+
+def test_image_factor_keeps_the_images_at_least_the_minimum_size():
+    from gpja.register.multiscale import MIN_IMAGE_SIDE_PX
+
+    schedule = Schedule(lambdas=(10.0, 5.0), iterations=(5, 5), image_factor=(2, 4))
+    side = 2 * MIN_IMAGE_SIDE_PX
+    assert schedule.factor(0, side, side) == 2 and schedule.factor(1, side, side) == 2  # 4 would go below
+    assert schedule.factor(0, MIN_IMAGE_SIDE_PX, MIN_IMAGE_SIDE_PX) == 1  # already at the minimum
+    assert schedule.factor(0, side, side + 1) == 1  # 2 does not divide the width
+    assert schedule.factor(1) == 4  # without a size, the setting itself
