@@ -214,13 +214,12 @@ def _parse_triangles(lines: list[tuple[int, str]]) -> tuple[np.ndarray, np.ndarr
     read ``v``, ``v/vt`` or ``v/vt/vn`` like the first line's. None otherwise (the line-by-line parser decides)."""
     if not lines:
         return None
-    first = lines[0][1].split()[1:]
-    parts = first[0].count("/") + 1 if first else 0
-    if len(first) != 3 or "//" in lines[0][1] or any(c.count("/") + 1 != parts for c in first) or parts > 3:
-        return None
+    corners = lines[0][1].split()[1:]
+    parts = corners[0].count("/") + 1 if corners else 0  # v, v/vt or v/vt/vn, as the first corner reads
     slashes = 3 * (parts - 1)
     # every line three corners, each with (parts - 1) slashes and no empty index
-    if any(len(line.split()) != 4 or line.count("/") != slashes or "//" in line for _, line in lines):
+    if not 1 <= parts <= 3 or any(len(line.split()) != 4 or line.count("/") != slashes or "//" in line
+                                  for _, line in lines):
         return None
     values = _parse_numbers(lines, 2, 3 * parts, np.int64)
     if values is None:
