@@ -359,9 +359,11 @@ def cmd_artist(args: argparse.Namespace) -> None:
 
 
 def cmd_reparametrize(args: argparse.Namespace) -> None:
+    from gpja.apply.settings import ReparamSettings
     from gpja.apply.steps import reparametrize
 
-    reparametrize(args.artist, args.mesh, args.template_dir, args.expression, args.output,
+    settings = ReparamSettings.from_config(_settings(args.settings), "--settings")
+    reparametrize(args.artist, args.mesh, args.template_dir, args.expression, args.output, settings,
                   progress=lambda m: print(m, flush=True))
 
 
@@ -623,6 +625,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--artist", required=True, help="the artist mesh (gpja artist)")
     p.add_argument("--mesh", required=True, help="the expression's registered mesh (template UVs)")
     p.add_argument("--template-dir", required=True, help="the subject's template folder")
+    p.add_argument("--settings", default="{}", help="JSON: the config's applications.reparam section")
     p.add_argument("--output", required=True, help="the .obj (a .json log of its checks beside it)")
     p.set_defaults(func=cmd_reparametrize)
 

@@ -57,7 +57,8 @@ NON_DEFAULT = {
     "applications.animation": {"sequence": ["1_neutral", "2_smile"], "frames_per_transition": 5, "fps": 12,
                                "size": 64, "yaw_deg": [10.0], "strip_frames": 3},
     "applications.export": {"base": "2_smile"},
-    "applications.reparam": {"artist_mesh": "artists/{subject}.obj", "standin_faces": 500, "texture_size": 64},
+    "applications.reparam": {"artist_mesh": "artists/{subject}.obj", "standin_faces": 500, "texture_size": 64,
+                             "untangle_iterations": 7, "untangle_rings": 2},
 }
 
 

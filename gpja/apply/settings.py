@@ -96,14 +96,24 @@ class ReparamSettings:
         standin_faces: faces of the stand-in (30000: its render with the resampled texture is 36 dB from the
             registered mesh's on S01 ``1_neutral``, 8000: 33 dB; a coarser surface shades differently).
         texture_size: side of the artist texture resampled from the shared one (px).
+        untangle_iterations: beyond the paper: at most this many rounds that smooth the carried mesh's folded
+            triangles back out along the expression's surface (``gpja.apply.reparam.untangle_on_surface``);
+            0 (the default) = the paper's map phi_b phi_a^-1 alone, folds included. 100 takes S01's folds from
+            229-347 to 7-23 per expression and costs 3-4 dB of the render check (docs/experiments.md).
+        untangle_rings: vertex rings around a fold that move with it.
     """
 
     artist_mesh: str | None = None
     standin_faces: int = 30000
     texture_size: int = 1024
+    untangle_iterations: int = 0
+    untangle_rings: int = 1
 
     from_config = classmethod(from_section)
 
     def __post_init__(self):
         if self.standin_faces < 100 or self.texture_size < 16:
             raise ValueError("need standin_faces >= 100 and texture_size >= 16")
+        if self.untangle_iterations < 0 or self.untangle_rings < 0:
+            raise ValueError(f"need untangle_iterations >= 0 and untangle_rings >= 0, got "
+                             f"{self.untangle_iterations} and {self.untangle_rings}")

@@ -245,12 +245,15 @@ def observed_faces(template_dir: str | Path, template: TexturedMesh, points: np.
 
 
 def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: str | Path, expression: str,
-                  output: str | Path, progress: Callable[[str], None] = print) -> dict:
+                  output: str | Path, settings: ReparamSettings | None = None,
+                  progress: Callable[[str], None] = print) -> dict:
     """The artist mesh carried onto one expression's registered mesh (its faces, UVs and texture kept), with its
     checks in the log: distance to the expression's surface, triangles flipped against the artist mesh as
     modelled, and the PSNR of its render (artist texture) against the registered mesh's (shared texture), under
-    white light (the texture's check) and under the estimated lighting."""
-    from gpja.apply.reparam import artist_on_template, carry_to_expression, flipped_faces
+    white light (the texture's check) and under the estimated lighting. ``settings``: ``untangle_iterations`` and
+    ``untangle_rings`` (None = the defaults): the folds the map leaves are smoothed out along the surface
+    (``gpja.apply.reparam.untangle_on_surface``), and the log has the counts before and after."""
+    from gpja.apply.reparam import artist_on_template, carry_to_expression, flipped_faces, untangle_on_surface
     from gpja.camera import framing_camera
     from gpja.io import read_image
     from gpja.lighting import uniform_sh
@@ -265,8 +268,14 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
         raise InputError(artist_path, "the artist mesh needs texture coordinates and its texture (gpja reparam)")
     source = read_uv_mesh(mesh_path)
     template_uv = artist_on_template(artist, template)
+    settings = ReparamSettings() if settings is None else settings
     carried = carry_to_expression(artist, template_uv, source, mesh_path)
-    distance = prepare_surface(source.V, source.F, find_boundary=False).closest(carried.V).distance
+    surface = prepare_surface(source.V, source.F, find_boundary=False)
+    flipped_mapped = flipped_faces(artist.V, carried.V, artist.F)
+    V, untangle = untangle_on_surface(carried.V, carried.F, surface, settings.untangle_iterations,
+                                      settings.untangle_rings)
+    carried = TexturedMesh(V, carried.F, carried.UV, carried.F_uv, carried.texture)
+    distance = surface.closest(carried.V).distance
     flipped = flipped_faces(artist.V, carried.V, artist.F)
     # the same count over the faces whose template texel some camera saw (not the socket, not under the chin)
     observed = observed_faces(template_dir, template, artist.V[artist.F].mean(axis=1))
@@ -287,12 +296,14 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
            "vertices": len(carried.V), "distance_to_source_mm": {"max": float(distance.max()),
                                                                  "median": float(np.median(distance))},
            "flipped_faces_against_artist": int(flipped), "flipped_observed_faces": int(flipped_observed),
+           "flipped_faces_before_untangle": int(flipped_mapped), "untangle": untangle,
            "observed_faces": int(observed.sum()),
            "render": {**psnr, "pixels": int(head.sum()), "size_px": CHECK_RENDER_SIZE},
            "seconds": round(time.perf_counter() - start, 2)}
     write_json(Path(output).with_suffix(".json"), log)
     progress(f"reparametrize: {expression}: {len(carried.V)} vertices, max {distance.max():.2e} mm off the "
              f"registered surface, {flipped} faces flipped against the artist mesh ({flipped_observed} of "
-             f"the {int(observed.sum())} on observed texels), render PSNR {psnr['psnr_db']:.1f} dB "
+             f"the {int(observed.sum())} on observed texels; {flipped_mapped} before untangling, folds "
+             f"{untangle['folded_before']} -> {untangle['folded_after']} in {untangle['rounds']} rounds), render PSNR {psnr['psnr_db']:.1f} dB "
              f"(texture, white light), {psnr['lit_psnr_db']:.1f} dB (estimated lighting)")
     return log

@@ -93,6 +93,8 @@ REMESH_SETTINGS = {"initial_vertices": 2 * (2 + N_LAT * N_LON), "tolerance_mm": 
 SEQUENCE = ["1_neutral", "2_smile", TEMPLATE_EXPRESSION, "1_neutral"]
 ANIMATION_SETTINGS = {"sequence": SEQUENCE, "frames_per_transition": 2, "size": 48, "strip_frames": 3}
 ARTIST_SETTINGS = {"standin_faces": 300, "texture_size": 64}
+#: The reparametrize steps run with the untangling on (the default is off), through the CLI's --settings.
+REPARAM_SETTINGS = {"untangle_iterations": 20, "untangle_rings": 1}
 EXPORT_BASE = "1_neutral"
 
 
@@ -211,8 +213,9 @@ def pipeline(tmp_path_factory) -> Run:
                              "--settings", json.dumps(ARTIST_SETTINGS), "--output", r.artist)
     for name, path in r.sources.items():
         r.status[f"reparametrize {name}"] = run("reparametrize", "--subject", SUBJECT, "--expression", name,
-                                                "--artist", r.artist, "--mesh", path,
-                                                "--template-dir", r.template_dir, "--output", r.reparametrized(name))
+                                                "--artist", r.artist, "--mesh", path, "--template-dir",
+                                                r.template_dir, "--settings", json.dumps(REPARAM_SETTINGS),
+                                                "--output", r.reparametrized(name))
     return r
 
 
@@ -380,6 +383,9 @@ def test_reparametrized_lies_on_the_expression(pipeline, name):
     assert on_surface_distance(source, carried.V).max() <= ON_SOURCE_MM
     if name == TEMPLATE_EXPRESSION:
         assert log["flipped_faces_against_artist"] == 0 and log["flipped_observed_faces"] == 0
+    # the smooth maps fold nothing, so the untangling (on, through --settings) has nothing to do
+    assert log["untangle"]["folded_before"] == log["untangle"]["folded_after"] == 0
+    assert log["untangle"]["rounds"] == 0 and log["flipped_faces_before_untangle"] == log["flipped_faces_against_artist"]
     # the resampled texture rendered on the artist mesh against the shared one on the source (white light)
     assert log["render"]["psnr_db"] >= MIN_ARTIST_PSNR_DB and "lit_psnr_db" in log["render"], log["render"]
 

@@ -186,6 +186,7 @@ rule reparametrize_expression:
         log_json=str(LAYOUT.reparametrized("{subject}", "{expression}").with_suffix(".json")),
     params:
         template_dir=results_path("template_dir", "{subject}"),
+        settings=json_arg(APPS.get("reparam") or {}),
     log:
         log_path("{subject}", "applications", "reparametrize_{expression}"),
     benchmark:
@@ -196,5 +197,6 @@ rule reparametrize_expression:
         runtime=10,
     shell:
         "gpja --threads {threads} reparametrize --subject {wildcards.subject} --expression {wildcards.expression}"
-        " --artist {input.artist} --mesh {input.mesh} --template-dir {params.template_dir} --output {output.obj}"
+        " --artist {input.artist} --mesh {input.mesh} --template-dir {params.template_dir}"
+        " --settings {params.settings} --output {output.obj}"
         " > {log} 2>&1"
