@@ -161,7 +161,8 @@ rule artist_mesh:
         log_json=str(LAYOUT.artist_mesh("{subject}").with_suffix(".json")),
     params:
         template_dir=results_path("template_dir", "{subject}"),
-        settings=json_arg(APPS.get("reparam") or {}),
+        # the untangling is the carrying's, not the artist mesh's: changing it does not remake the artist mesh
+        settings=json_arg({k: v for k, v in (APPS.get("reparam") or {}).items() if not k.startswith("untangle_")}),
     log:
         log_path("{subject}", "applications", "artist_mesh"),
     benchmark:
