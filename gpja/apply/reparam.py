@@ -30,14 +30,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 
 from gpja.apply.remesh import locate_on_atlas, positions_at_uv
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh
 from gpja.render.rasterize import BACKGROUND
 from gpja.render.uv_raster import rasterize_uv
-from gpja.surface import Surface, prepare_surface, rim
+from gpja.surface import prepare_surface
 
 #: The artist mesh's bounding-box diagonal over the template's must lie in this range; outside it the mesh is
 #: in other units (metres, centimetres, inches) or is not of this subject.
@@ -230,85 +229,6 @@ def carry_to_expression(artist: TexturedMesh, template_uv: np.ndarray, expressio
         raise ValueError(f"template_uv has shape {template_uv.shape}, expected ({len(artist.V)}, 2)")
     location = locate_on_atlas(expression_mesh, template_uv, source, "of an artist vertex")
     return TexturedMesh(positions_at_uv(expression_mesh, location), artist.F, artist.UV, artist.F_uv, artist.texture)
-
-
-# --- folds of the carried mesh --------------------------------------------------------------------------
-
-def folded_faces(V: np.ndarray, F: np.ndarray, adjacency: np.ndarray) -> np.ndarray:
-    """Which faces lie folded over within one mesh: the normal points against its neighbours'.
-
-    Args:
-        V: (n, 3) float64 positions, mm; F: (m, 3) int faces.
-        adjacency: (m, 3) int64 neighbour across each edge, -1 on the rim (``gpja.render.silhouettes.face_adjacency``).
-    Returns:
-        (m,) bool: ``n_f . sum(n_g over neighbours g) < 0`` with unit face normals (a degenerate face has a zero
-        normal and is not folded). A smooth surface has none; a pleat (the triangles' order along the surface
-        reversed) has a strip of them.
-    """
-    V, F = np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    around = np.where((adjacency >= 0)[:, :, None], n[np.maximum(adjacency, 0)], 0.0).sum(axis=1)
-    return (n * around).sum(axis=1) < 0.0
-
-
-def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iterations: int, rings: int
-                        ) -> tuple[np.ndarray, dict]:
-    """Smooth the folds out of a mesh that lies on ``surface`` without leaving it.
-
-    Where a registration crumpled its texture parametrisation (unobserved parts, under the jaw, the lids of a
-    closing eye), vertices carried through it land on the right surface in the wrong order, and their triangles
-    fold over. Each round takes the vertices of the folded faces (:func:`folded_faces`) and ``rings`` rings
-    around them, moves each to the mean of its neighbours (uniform Laplacian) and back onto ``surface`` at the
-    closest point; rim vertices stay. Stops when nothing is folded or after ``iterations`` rounds. Vertices
-    away from folds do not move, so the map stays the paper's phi_b phi_a^-1 everywhere else. What it costs:
-    where a fold was visible, the untangled mesh shows the texture in another order than the registered mesh's
-    render (docs/experiments.md, "Untangling the carried artist mesh": 3-4 dB of the render check on S01).
-
-    Args:
-        V: (n, 3) float64 mm on ``surface``; F: (m, 3) int faces.
-        surface: the expression's surface (``gpja.surface.prepare_surface``).
-        iterations: most rounds (0 = none: ``V`` returned unchanged).
-        rings: neighbourhood around the folded faces' vertices that moves with them.
-    Returns:
-        The untangled (n, 3) float64 positions (on ``surface``) and a log: ``folded_before``, ``folded_after``,
-        ``rounds``, ``moved_vertices`` (ever moved), ``max_move_mm``.
-    """
-    from gpja.register.laplacian import uniform_laplacian
-    from gpja.render.silhouettes import face_adjacency
-
-    V = np.array(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    adjacency = face_adjacency(F)
-    folded = folded_faces(V, F, adjacency)
-    log = {"folded_before": int(folded.sum()), "folded_after": int(folded.sum()), "rounds": 0,
-           "moved_vertices": 0, "max_move_mm": 0.0}
-    if iterations <= 0 or not folded.any():
-        return V, log
-    L = uniform_laplacian(V, F)
-    degree = np.maximum(L.diagonal(), 1.0)
-    neighbours = (sp.diags(L.diagonal()) - L).tocsr()  # the 0/1 vertex adjacency
-    fixed = rim(V, F)[1]
-    start = V.copy()
-    ever = np.zeros(len(V), dtype=bool)
-    for round_ in range(1, int(iterations) + 1):
-        move = np.zeros(len(V), dtype=bool)
-        move[F[folded].ravel()] = True
-        for _ in range(int(rings)):
-            move |= (neighbours @ move.astype(np.float64)) > 0
-        move &= ~fixed
-        if not move.any():
-            break
-        mean = (neighbours @ V)[move] / degree[move, None]
-        V[move] = surface.closest(mean).point
-        ever |= move
-        folded = folded_faces(V, F, adjacency)
-        log["rounds"] = round_
-        if not folded.any():
-            break
-    log.update(folded_after=int(folded.sum()), moved_vertices=int(ever.sum()),
-               max_move_mm=float(np.linalg.norm(V - start, axis=1).max()))
-    return V, log
 
 
 # --- the shared texture in the artist's layout ----------------------------------------------------------

@@ -97,7 +97,7 @@ class ReparamSettings:
             registered mesh's on S01 ``1_neutral``, 8000: 33 dB; a coarser surface shades differently).
         texture_size: side of the artist texture resampled from the shared one (px).
         untangle_iterations: beyond the paper: at most this many rounds that smooth the carried mesh's folded
-            triangles back out along the expression's surface (``gpja.apply.reparam.untangle_on_surface``);
+            triangles back out along the expression's surface (``gpja.folds.untangle_on_surface``);
             0 (the default) = the paper's map phi_b phi_a^-1 alone, folds included. 100 takes S01's folds from
             229-347 to 7-23 per expression and costs 3-4 dB of the render check (docs/experiments.md).
         untangle_rings: vertex rings around a fold that move with it.

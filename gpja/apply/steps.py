@@ -252,8 +252,9 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
     modelled, and the PSNR of its render (artist texture) against the registered mesh's (shared texture), under
     white light (the texture's check) and under the estimated lighting. ``settings``: ``untangle_iterations`` and
     ``untangle_rings`` (None = the defaults): the folds the map leaves are smoothed out along the surface
-    (``gpja.apply.reparam.untangle_on_surface``), and the log has the counts before and after."""
-    from gpja.apply.reparam import artist_on_template, carry_to_expression, flipped_faces, untangle_on_surface
+    (``gpja.folds.untangle_on_surface``), and the log has the counts before and after."""
+    from gpja.apply.reparam import artist_on_template, carry_to_expression, flipped_faces
+    from gpja.folds import untangle_on_surface
     from gpja.camera import framing_camera
     from gpja.io import read_image
     from gpja.lighting import uniform_sh

@@ -149,6 +149,10 @@ class Schedule:
             resolution and renders a quarter of the pixels (``ExpressionTargets.downsampled``). Never below
             :data:`MIN_IMAGE_SIDE_PX` on the shorter side (:meth:`factor`).
         seed: seeds the view order of ``views_per_iteration`` (the config's; same seed, same numbers).
+        untangle_iterations: beyond the paper (0 = off, the paper): after the last level, at most this many
+            rounds that smooth the mesh's folded triangles out along its own surface (``gpja.folds``); the
+            surface stays, the texture coordinates of the crumpled parts move back into order.
+        untangle_rings: vertex rings around a fold that move with it.
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -173,6 +177,8 @@ class Schedule:
     views_per_iteration: tuple[int, ...] | None = None
     image_factor: tuple[int, ...] | None = None
     seed: int = 0
+    untangle_iterations: int = 0
+    untangle_rings: int = 1
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -197,6 +203,9 @@ class Schedule:
                                               or any(int(f) < 1 for f in self.image_factor)):
             raise ValueError(f"image_factor needs one entry >= 1 per level ({len(self.lambdas)}), "
                              f"got {list(self.image_factor)}")
+        if int(self.untangle_iterations) < 0 or int(self.untangle_rings) < 0:
+            raise ValueError(f"untangle_iterations and untangle_rings must be >= 0, got {self.untangle_iterations} "
+                             f"and {self.untangle_rings}")
         if int(self.warmup_iterations) < 0:
             raise ValueError(f"warmup_iterations must be >= 0, got {self.warmup_iterations}")
         if self.optimizer_state not in OPTIMIZER_STATES:
@@ -380,7 +389,30 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         log.levels.append({"stage": "level", "level": level, **entry})
         if on_stage is not None:
             on_stage(f"level{level + 1}", mesh)
+    if schedule.untangle_iterations > 0:
+        mesh = untangle_stage(mesh, schedule, progress, log, on_stage)
     return mesh, log
+
+
+def untangle_stage(mesh: TexturedMesh, schedule: Schedule, progress: Callable[[str], None], log: RegistrationLog,
+                   on_stage: Callable[[str, TexturedMesh], None] | None) -> TexturedMesh:
+    """The folds of the registered mesh smoothed out along its own surface (``gpja.folds``), logged and saved as
+    stage ``untangle``; returns the mesh (same topology and texture coordinates, folds' vertices moved)."""
+    from gpja.folds import untangle_on_surface
+    from gpja.surface import prepare_surface
+
+    start = time.perf_counter()
+    V, entry = untangle_on_surface(mesh.V, mesh.F, prepare_surface(mesh.V, mesh.F, find_boundary=False),
+                                   int(schedule.untangle_iterations), int(schedule.untangle_rings))
+    mesh = mesh.with_vertices(V)
+    entry["seconds"] = round(time.perf_counter() - start, 3)
+    log.levels.append({"stage": "untangle", **entry})
+    progress(f"untangle: {entry['folded_before']} -> {entry['folded_after']} folded faces in {entry['rounds']} "
+             f"rounds, {entry['moved_vertices']} vertices moved (at most {entry['max_move_mm']:.2f} mm along the "
+             f"surface), {entry['seconds']:.1f} s")
+    if on_stage is not None:
+        on_stage("untangle", mesh)
+    return mesh
 
 
 def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, targets: ExpressionTargets,

@@ -9,10 +9,11 @@ import pytest
 from scipy import ndimage
 
 from gpja.apply.reparam import (
-    ARTIST_MAX_MEDIAN_MM, artist_on_template, carry_to_expression, check_artist_mesh, flipped_faces, folded_faces,
-    make_standin_artist_mesh, resample_texture, template_uv_of_points, untangle_on_surface, uv_signed_areas,
+    ARTIST_MAX_MEDIAN_MM, artist_on_template, carry_to_expression, check_artist_mesh, flipped_faces,
+    make_standin_artist_mesh, resample_texture, template_uv_of_points, uv_signed_areas,
 )
-from gpja.render.silhouettes import face_adjacency
+from gpja.folds import untangle_on_surface
+from tests.test_folds import flat_grid, pushed
 from gpja.apply.remesh import locate_uv, positions_at_uv
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh
@@ -287,51 +288,7 @@ def test_flipped_faces_on_the_sphere(artist, template, template_uv):
     assert flipped_faces(on_template, on_template * np.array([-1.0, 1.0, 1.0]), artist.F) > 0
 
 
-# --- folds and untangling -------------------------------------------------------------------------------
-
-def flat_grid(n: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """An n x n grid of 1 mm squares in z = 0, two counter-clockwise triangles each (normals +z)."""
-    x, y = np.meshgrid(np.arange(float(n)), np.arange(float(n)))
-    V = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)])
-    F = np.array([[i * n + j, i * n + j + 1, i * n + j + n + 1] for i in range(n - 1) for j in range(n - 1)]
-                 + [[i * n + j, i * n + j + n + 1, i * n + j + n] for i in range(n - 1) for j in range(n - 1)])
-    return V, F
-
-
-def test_folded_faces_analytic_on_a_flat_grid():
-    """Flat: nothing folded. One interior vertex pushed past its right neighbour (in the plane): exactly the
-    faces whose orientation reversed are folded, and they are the ones ``flipped_faces`` counts against the
-    flat grid."""
-    V, F = flat_grid()
-    adjacency = face_adjacency(F)
-    assert not folded_faces(V, F, adjacency).any()
-    moved = V.copy()
-    moved[3 * 8 + 3, 0] = 4.6  # vertex (3, 3) past (4, 3)
-    reversed_ = np.cross(moved[F[:, 1]] - moved[F[:, 0]], moved[F[:, 2]] - moved[F[:, 0]])[:, 2] < 0
-    assert reversed_.sum() > 0
-    np.testing.assert_array_equal(folded_faces(moved, F, adjacency), reversed_)
-    assert flipped_faces(V, moved, F) == reversed_.sum()
-    assert not folded_faces(V * np.array([1.0, -1.0, -1.0]), F, adjacency).any()  # turned over as a whole: no fold
-
-
-def test_untangle_unfolds_a_grid_and_stays_on_its_plane():
-    """The pushed vertex is pulled back among its neighbours: no fold left, every vertex still on the plane,
-    the rim where it was, vertices away from the fold untouched (rings = 1)."""
-    V, F = flat_grid()
-    moved = V.copy()
-    moved[3 * 8 + 3, 0] = 4.6
-    plane = prepare_surface(np.array([[-5.0, -5, 0], [15, -5, 0], [15, 15, 0], [-5, 15, 0]]),
-                            np.array([[0, 1, 2], [0, 2, 3]]), find_boundary=False)
-    out, log = untangle_on_surface(moved, F, plane, iterations=50, rings=1)
-    assert log["folded_before"] > 0 and log["folded_after"] == 0 and 1 <= log["rounds"] <= 50
-    assert not folded_faces(out, F, face_adjacency(F)).any()
-    assert np.abs(out[:, 2]).max() < CLOSEST_POINT_F32_MM
-    rim = (V[:, 0] == 0) | (V[:, 0] == 7) | (V[:, 1] == 0) | (V[:, 1] == 7)
-    np.testing.assert_array_equal(out[rim], moved[rim])
-    far = np.abs(V[:, :2] - [3.0, 3.0]).max(axis=1) >= 4  # beyond the folded fan and one ring
-    np.testing.assert_array_equal(out[far], moved[far])
-    assert log["moved_vertices"] < len(V) and log["max_move_mm"] > 0.5
-
+# --- untangling the carried mesh ------------------------------------------------------------------------
 
 def test_untangle_is_the_identity_without_folds_or_rounds(artist, template, template_uv):
     """A fold-free carried mesh comes back bit for bit; 0 rounds returns a folded one unchanged."""
@@ -341,8 +298,7 @@ def test_untangle_is_the_identity_without_folds_or_rounds(artist, template, temp
     np.testing.assert_array_equal(out, on_template)
     assert log == {"folded_before": 0, "folded_after": 0, "rounds": 0, "moved_vertices": 0, "max_move_mm": 0.0}
     V, F = flat_grid()
-    moved = V.copy()
-    moved[3 * 8 + 3, 0] = 4.6
+    moved = pushed(V)
     out, log = untangle_on_surface(moved, F, surface, iterations=0, rings=1)
     np.testing.assert_array_equal(out, moved)
     assert log["folded_before"] == log["folded_after"] > 0 and log["rounds"] == 0

@@ -386,3 +386,42 @@ def test_image_factor_keeps_the_images_at_least_the_minimum_size():
     assert schedule.factor(0, MIN_IMAGE_SIDE_PX, MIN_IMAGE_SIDE_PX) == 1  # already at the minimum
     assert schedule.factor(0, side, side + 1) == 1  # 2 does not divide the width
     assert schedule.factor(1) == 4  # without a size, the setting itself
+
+
+def folded_start_mesh():
+    """The start sphere with one vertex pushed along the surface past a neighbour: a fold (gpja.folds)."""
+    mesh = start_mesh()
+    V = mesh.V.copy()
+    i, j = mesh.F[0, 0], mesh.F[0, 1]
+    pushed = V[j] + 0.6 * (V[j] - V[i])
+    V[i] = pushed * np.linalg.norm(V[i]) / np.linalg.norm(pushed)
+    return mesh.with_vertices(V)
+
+
+def test_untangle_stage_runs_last_removes_the_fold_and_is_off_by_default():
+    from gpja.folds import folded_faces
+    from gpja.render.silhouettes import face_adjacency
+
+    _, _, targets = ellipsoid_targets(size=48)
+    mesh = folded_start_mesh()
+    adjacency = face_adjacency(mesh.F)
+    assert folded_faces(mesh.V, mesh.F, adjacency).any()
+    kw = dict(texture=torch.ones(4, 4, 3), mask_texture=torch.ones(4, 4, 1), progress_every=0)
+    # steps of a millionth of an edge: the levels leave the fold where it is, the stage alone acts on it
+    common = dict(lambdas=(20.0,), iterations=(2,), lr_fraction=1e-6)
+    stages = []
+    out, log = optimise(mesh, targets, Switches(color=False), Schedule(**common, untangle_iterations=50),
+                        on_stage=lambda name, m: stages.append((name, m)), **kw)
+    assert [name for name, _ in stages] == ["level1", "untangle"]
+    entry = log.levels[-1]
+    assert entry["stage"] == "untangle" and entry["folded_before"] > 0 and entry["folded_after"] == 0
+    assert not folded_faces(out.V, out.F, adjacency).any()
+    np.testing.assert_array_equal(out.UV, mesh.UV)
+    # every vertex still on the level's surface (the faceted sphere: between its inscribed and its vertex radius)
+    radius = np.linalg.norm(out.V, axis=1)
+    assert radius.max() <= 55.0 + 1e-3 and radius.min() >= 0.9 * 55.0
+    off, off_log = optimise(mesh, targets, Switches(color=False), Schedule(**common), **kw)
+    assert [lvl["stage"] for lvl in off_log.levels] == ["level"]
+    np.testing.assert_array_equal(off.V, stages[0][1].V)  # off: the last level's mesh, as before the stage
+    with pytest.raises(ValueError, match="untangle"):
+        Schedule(**common, untangle_iterations=-1)
