@@ -95,7 +95,7 @@ class TemplateSettings:
                                                    "hold_tangential", "hold_moved_mm", "hold_gap_mm", "spring_rate", "flow_rounds",
                                                    "flow_levels", "flow_smoothness", "flow_still_mm", "color_gradient",
                                                    "average_iterations", "views_per_iteration", "image_factor",
-                                                   "seed")})
+                                                   "seed", "untangle_iterations", "untangle_rings")})
     texture_method: str = "fusion"
     texture_size: int = 1024
     texture_size_from_images: bool = True
