@@ -91,7 +91,7 @@ def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iteratio
         move &= ~fixed
         if not move.any():
             break
-        mean = (neighbours @ V)[move] / degree[move, None]
+        mean = (neighbours[move] @ V) / degree[move, None]  # the moving rows only
         V[move] = surface.closest(mean).point
         ever |= move
         # only the faces at moved vertices change their normal, only they and their neighbours their fold

@@ -254,8 +254,8 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
     ``untangle_rings`` (None = the defaults): the folds the map leaves are smoothed out along the surface
     (``gpja.folds.untangle_on_surface``), and the log has the counts before and after."""
     from gpja.apply.reparam import artist_on_template, carry_to_expression, flipped_faces
-    from gpja.folds import untangle_on_surface
     from gpja.camera import framing_camera
+    from gpja.folds import untangle_on_surface
     from gpja.io import read_image
     from gpja.lighting import uniform_sh
     from gpja.metrics.photometric import masked_psnr, render_with_texture
@@ -275,7 +275,7 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
     flipped_mapped = flipped_faces(artist.V, carried.V, artist.F)
     V, untangle = untangle_on_surface(carried.V, carried.F, surface, settings.untangle_iterations,
                                       settings.untangle_rings)
-    carried = TexturedMesh(V, carried.F, carried.UV, carried.F_uv, carried.texture)
+    carried = carried.with_vertices(V)
     distance = surface.closest(carried.V).distance
     flipped = flipped_faces(artist.V, carried.V, artist.F)
     # the same count over the faces whose template texel some camera saw (not the socket, not under the chin)
@@ -305,6 +305,7 @@ def reparametrize(artist_path: str | Path, mesh_path: str | Path, template_dir: 
     progress(f"reparametrize: {expression}: {len(carried.V)} vertices, max {distance.max():.2e} mm off the "
              f"registered surface, {flipped} faces flipped against the artist mesh ({flipped_observed} of "
              f"the {int(observed.sum())} on observed texels; {flipped_mapped} before untangling, folds "
-             f"{untangle['folded_before']} -> {untangle['folded_after']} in {untangle['rounds']} rounds), render PSNR {psnr['psnr_db']:.1f} dB "
-             f"(texture, white light), {psnr['lit_psnr_db']:.1f} dB (estimated lighting)")
+             f"{untangle['folded_before']} -> {untangle['folded_after']} in {untangle['rounds']} rounds), "
+             f"render PSNR {psnr['psnr_db']:.1f} dB (texture, white light), {psnr['lit_psnr_db']:.1f} dB "
+             "(estimated lighting)")
     return log
