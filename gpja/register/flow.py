@@ -76,6 +76,8 @@ class FlowSettings:
             dropped, and the residual re-weighting's scale (mm).
         still_mm: a target closer than this to its vertex is replaced by the vertex (0 = off, the stage as
             first written; ``match_round``).
+        chroma: weight of the red-green chroma in the matched channel (0 = luminance alone, the stage as
+            first written; :func:`to_match_u8`).
     """
 
     rounds: int = 3
@@ -83,12 +85,35 @@ class FlowSettings:
     fb_tolerance_px: float = 1.0
     spread_mm: float = 2.0
     still_mm: float = 0.0
+    chroma: float = 0.0
 
 
 def to_grey_u8(image: np.ndarray) -> np.ndarray:
     """(H, W, 3) linear colours in [0, 1] -> (H, W) uint8 gamma-encoded luminance."""
-    grey = image @ np.array([0.299, 0.587, 0.114])
-    return np.clip(255.0 * np.clip(grey, 0.0, 1.0) ** MATCH_GAMMA + 0.5, 0, 255).astype(np.uint8)
+    return to_match_u8(image, 0.0)
+
+
+def red_green_chroma(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) linear colours -> (H, W) float64 ``(R - G) / (R + G + B)``, in [-1, 1] (0 where black)."""
+    total = image.sum(-1)
+    return (image[..., 0] - image[..., 1]) / np.maximum(total, 1e-3)
+
+
+def to_match_u8(image: np.ndarray, chroma: float) -> np.ndarray:
+    """(H, W, 3) linear colours in [0, 1] -> (H, W) uint8 channel the optical flow matches.
+
+    ``(Y + chroma * C) / (1 + chroma)`` with ``Y`` the gamma-encoded luminance and ``C`` the clipped
+    red-green chroma (:func:`red_green_chroma`, in [0, 1]). DIS flow takes one 8-bit channel, and
+    luminance alone cannot see the lips: on the synthetic references the vermilion and the skin around
+    it differ by 0.01 in gamma luminance (skin texture: 0.02-0.05) but by 0.2 in this chroma (skin:
+    0.005-0.02), so the lip's outline, the one feature that says where a closed lip's material went,
+    is flat in the grey image (docs/experiments.md, "The lips are invisible to the flow"). The same
+    linear map is applied to the render and the reference.
+    """
+    grey = np.clip(image @ np.array([0.299, 0.587, 0.114]), 0.0, 1.0) ** MATCH_GAMMA
+    if chroma > 0:
+        grey = (grey + chroma * np.clip(red_green_chroma(image), 0.0, 1.0)) / (1.0 + chroma)
+    return np.clip(255.0 * grey + 0.5, 0, 255).astype(np.uint8)
 
 
 def dense_flow(source: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -269,7 +294,8 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
     facing_all = np.zeros((len(targets.cameras), len(mesh.V)))
     for b, camera in enumerate(targets.cameras):
         per_view[b], facing_all[b] = view_matches(
-            camera, mesh.V, normals, use, to_grey_u8(colour[b]), depth[b], to_grey_u8(images[b]), scan_depth[b],
+            camera, mesh.V, normals, use, to_match_u8(colour[b], settings.chroma), depth[b],
+            to_match_u8(images[b], settings.chroma), scan_depth[b],
             scan_cov[b], settings.fb_tolerance_px)
     target, count = combine_views(per_view, settings.spread_mm)
     if settings.still_mm > 0:

@@ -131,6 +131,9 @@ class Schedule:
         flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
         flow_still_mm: a flow match that moves its vertex less than this is taken as "stays" (0 = off, the
             stage as first written; ``gpja.register.flow.match_round``).
+        flow_chroma: weight of the red-green chroma beside the luminance in the image the flow matches (0 =
+            luminance alone, the stage as first written; ``gpja.register.flow.to_match_u8``): the lips'
+            outline is a chroma edge.
         color_gradient: "full" = the colour constraint's whole gradient moves the vertices (the paper);
             "tangential" = only its part along the surface (``gpja.register.hra.along_surface``, beyond the
             paper): on the template's nose the colour's normal push, undone by depth along the view rays,
@@ -172,6 +175,7 @@ class Schedule:
     flow_levels: int = 1
     flow_smoothness: float = FlowSettings.smoothness
     flow_still_mm: float = FlowSettings.still_mm
+    flow_chroma: float = FlowSettings.chroma
     color_gradient: str = "full"
     average_iterations: int = 0
     views_per_iteration: tuple[int, ...] | None = None
@@ -225,6 +229,8 @@ class Schedule:
             raise ValueError(f"flow_smoothness must be > 0, got {self.flow_smoothness}")
         if not float(self.flow_still_mm) >= 0.0:
             raise ValueError(f"flow_still_mm must be >= 0, got {self.flow_still_mm}")
+        if not float(self.flow_chroma) >= 0.0:
+            raise ValueError(f"flow_chroma must be >= 0, got {self.flow_chroma}")
         if self.color_gradient not in COLOR_GRADIENTS:
             raise ValueError(f"color_gradient must be one of {', '.join(COLOR_GRADIENTS)}, got {self.color_gradient!r}")
         if not 0.0 <= float(self.hold_tangential) < 1.0:
@@ -442,7 +448,7 @@ def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedul
     from gpja.register.flow import align_by_flow
 
     settings = FlowSettings(rounds=int(schedule.flow_rounds), smoothness=float(schedule.flow_smoothness),
-                            still_mm=float(schedule.flow_still_mm))
+                            still_mm=float(schedule.flow_still_mm), chroma=float(schedule.flow_chroma))
     mesh, entry = align_by_flow(mesh, targets, texture, mask_texture, settings, render=render, progress=progress)
     log.levels.append({**entry, "stage": name})
     if on_stage is not None:

@@ -5,7 +5,7 @@ import torch
 
 from gpja.mesh import TexturedMesh
 from gpja.register.flow import (FlowSettings, align_by_flow, bilinear, combine_views, dense_flow, solve_displacement,
-                                to_grey_u8, unproject)
+                                red_green_chroma, to_grey_u8, to_match_u8, unproject)
 from gpja.register.hra import ExpressionTargets
 from tests.tolerances import EXACT_F64
 
@@ -55,6 +55,42 @@ def test_grey_conversion_is_gamma_encoded_and_clipped():
     assert grey.dtype == np.uint8
     assert grey[0, 0] == 0 and grey[0, 2] == 255
     assert abs(int(grey[0, 1]) - round(255 * 0.5 ** (1 / 2.2))) <= 1
+
+
+def test_the_match_channel_adds_chroma_to_the_luminance():
+    """Two colours of equal luminance (a lip's red on the skin's grey-pink): one grey value without the chroma,
+    told apart with it; chroma 0 is the luminance channel exactly."""
+    red = np.array([0.8, 0.2, 0.2])
+    luminance = red @ np.array([0.299, 0.587, 0.114])
+    image = np.stack([red, np.full(3, luminance)])[None]  # (1, 2, 3): red, then the grey of the same luminance
+    np.testing.assert_allclose(red_green_chroma(image)[0], [0.6 / 1.2, 0.0], atol=EXACT_F64)
+    assert np.array_equal(to_match_u8(image, 0.0), to_grey_u8(image))
+    assert abs(int(to_grey_u8(image)[0, 0]) - int(to_grey_u8(image)[0, 1])) <= 1
+    both = to_match_u8(image, 1.0).astype(int)[0]
+    assert both[0] - both[1] == pytest.approx(255 * 0.5 / 2.0, abs=1.0)
+    assert np.array_equal(to_match_u8(np.zeros((2, 2, 3)), 1.0), np.zeros((2, 2), np.uint8))  # black: no chroma
+
+
+def test_a_disc_of_equal_luminance_is_tracked_only_with_the_chroma():
+    """A red disc on grey of the same luminance, shifted 4 px: the luminance flow sees nothing there, the
+    chroma channel follows the disc's rim."""
+    size, shift = 96, 4
+    y, x = np.mgrid[0:size, 0:size].astype(np.float64)
+    red = np.array([0.8, 0.2, 0.2])
+    grey = np.full(3, red @ np.array([0.299, 0.587, 0.114]))
+
+    def disc(cx):
+        inside = (x - cx) ** 2 + (y - size / 2) ** 2 < 15.0 ** 2
+        return np.where(inside[..., None], red, grey)
+
+    source, target = disc(size / 2), disc(size / 2 + shift)
+    angle = np.arctan2(y - size / 2, x - size / 2)
+    rim = np.abs(np.hypot(x - size / 2, y - size / 2) - 15.0) < 1.5
+    rim &= np.abs(np.cos(angle)) > 0.7  # where the disc's edge crosses the shift
+    flow_grey = dense_flow(to_match_u8(source, 0.0), to_match_u8(target, 0.0))
+    flow_chroma = dense_flow(to_match_u8(source, 1.0), to_match_u8(target, 1.0))
+    assert np.median(np.abs(flow_grey[rim, 0])) < 1.0
+    assert np.median(np.abs(flow_chroma[rim, 0] - shift)) < 1.0
 
 
 def test_dense_flow_recovers_a_shift_of_many_pixels():
