@@ -169,10 +169,12 @@ def main() -> None:
 
 
 def level_entry(lv: dict) -> dict:
-    """One registration log entry in the JSON: a flow stage (seconds, rounds) or a level / the warm-up."""
-    if "iterations" not in lv:  # a flow stage: no descent iterations
+    """One registration log entry in the JSON: a flow stage or the untangling (seconds, rounds) or a level / the
+    warm-up."""
+    if "iterations" not in lv:  # a stage without descent iterations
+        rounds = lv.get("rounds") or 0  # the flow logs each round, the untangling counts them
         return {"level": lv["stage"], "vertices": lv.get("vertices"), "seconds": lv["seconds"],
-                "rounds": len(lv.get("rounds") or [])}
+                "rounds": rounds if isinstance(rounds, int) else len(rounds)}
     return {"level": lv["level"] + 1 if lv.get("stage") != "warmup" else "warm-up", "vertices": lv["vertices"],
             "iterations": lv["iterations"], "seconds": lv["seconds"], "setup_seconds": lv["setup_seconds"],
             "iterations_per_second": round(lv["iterations"] / max(lv["seconds"] - lv["setup_seconds"], 1e-9), 2),

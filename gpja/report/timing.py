@@ -89,8 +89,9 @@ def log_vertices(log: dict) -> int | None:
     """Vertex count of the registered mesh (``vertices``, or the last level's)."""
     if is_number(log.get("vertices")):
         return int(log["vertices"])
-    levels = log.get("levels") or []
-    return int(levels[-1]["vertices"]) if levels and is_number(levels[-1].get("vertices")) else None
+    # the last entry that counts them: a stage after the last level (``untangle``) keeps its mesh
+    counted = [lv["vertices"] for lv in log.get("levels") or [] if is_number(lv.get("vertices"))]
+    return int(counted[-1]) if counted else None
 
 
 def load_logs(results: str | Path, subjects, method: str, expressions) -> list[dict]:
@@ -102,13 +103,14 @@ def load_logs(results: str | Path, subjects, method: str, expressions) -> list[d
 
 
 def stage_label(entry: dict, index: int) -> str:
-    """A registration log entry's row label: ``warm-up``, ``flow`` / ``flow2`` (flow stages), ``level k``."""
+    """A registration log entry's row label: ``warm-up``, ``level k``, else the stage's own name (``flow`` /
+    ``flow2``, ``untangle``)."""
     stage = str(entry.get("stage", ""))
     if stage == "warmup":
         return "warm-up"
-    if stage.startswith("flow"):
-        return stage
-    return f"level {entry.get('level', index)}"
+    if stage in ("", "level"):
+        return f"level {entry.get('level', index)}"
+    return stage
 
 
 def log_rows(method: str, logs: list[dict]) -> list[tuple[str, list, list]]:

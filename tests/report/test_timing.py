@@ -44,5 +44,16 @@ def test_stage_labels_name_the_warm_up_the_flow_stages_and_the_levels():
     from gpja.report.timing import stage_label
 
     entries = [{"stage": "flow"}, {"stage": "level", "level": 0}, {"stage": "flow2"}, {"stage": "warmup"},
-               {"stage": "level", "level": 2}]
-    assert [stage_label(e, i) for i, e in enumerate(entries)] == ["flow", "level 0", "flow2", "warm-up", "level 2"]
+               {"stage": "level", "level": 2}, {"stage": "untangle"}, {"level": 1}]
+    assert [stage_label(e, i) for i, e in enumerate(entries)] == ["flow", "level 0", "flow2", "warm-up", "level 2",
+                                                                  "untangle", "level 1"]
+
+
+def test_a_registration_counts_the_vertices_of_its_last_level_not_of_a_stage_after_it():
+    from gpja.report.timing import log_vertices
+
+    log = {"levels": [{"stage": "level", "level": 0, "vertices": 16}, {"stage": "level", "level": 1, "vertices": 40},
+                      {"stage": "untangle", "folded_before": 3, "folded_after": 0}]}
+    assert log_vertices(log) == 40
+    assert log_vertices({"levels": [{"stage": "untangle"}]}) is None
+    assert log_vertices({"vertices": 7, "levels": []}) == 7

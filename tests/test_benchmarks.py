@@ -1,0 +1,25 @@
+"""benchmarks/: the scripts' own bookkeeping (their timings are measured by running them, not here)."""
+import importlib.util
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_benchmark(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_register_benchmark_reports_every_kind_of_log_entry():
+    """A level, a flow stage (its rounds a list) and the untangling (its rounds a count) each give a row."""
+    level_entry = load_benchmark("bench_register").level_entry
+    level = {"stage": "level", "level": 0, "vertices": 16, "iterations": 10, "seconds": 3.0, "setup_seconds": 1.0,
+             "seconds_by_stage": {"render": 1.5}}
+    assert level_entry(level) == {"level": 1, "vertices": 16, "iterations": 10, "seconds": 3.0, "setup_seconds": 1.0,
+                                  "iterations_per_second": 5.0, "seconds_by_stage": {"render": 1.5}}
+    flow = {"stage": "flow2", "vertices": 40, "seconds": 2.0, "rounds": [{"moved": 1.0}, {"moved": 0.5}]}
+    assert level_entry(flow) == {"level": "flow2", "vertices": 40, "seconds": 2.0, "rounds": 2}
+    untangle = {"stage": "untangle", "seconds": 4.1, "rounds": 17, "folded_before": 3, "folded_after": 0}
+    assert level_entry(untangle) == {"level": "untangle", "vertices": None, "seconds": 4.1, "rounds": 17}
