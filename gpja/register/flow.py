@@ -89,7 +89,7 @@ class FlowSettings:
 
 
 def to_grey_u8(image: np.ndarray) -> np.ndarray:
-    """(H, W, 3) linear colours in [0, 1] -> (H, W) uint8 gamma-encoded luminance."""
+    """(H, W, 3) linear colours in [0, 1] -> (H, W) uint8 gamma-encoded luminance (``to_match_u8`` without chroma)."""
     return to_match_u8(image, 0.0)
 
 
@@ -160,7 +160,7 @@ def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.nda
     Args:
         V, normals: (n, 3) float64 vertex positions (mm) and unit normals.
         use: (n,) bool vertices allowed to match (not in the mouth socket).
-        render_grey, reference_grey: (H, W) uint8 (``to_grey_u8``).
+        render_grey, reference_grey: (H, W) uint8 (``to_match_u8``).
         render_depth: (H, W) float64 the mesh's camera depth, mm (0 = empty).
         scan_depth, scan_coverage: (H, W) float64 the scan's depth (mm) and coverage in [0, 1].
     Returns:
