@@ -96,6 +96,18 @@ def segment_distance_2d(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarr
     return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
 
 
+def hash_uv(uv: np.ndarray) -> np.ndarray:
+    """(q,) uint64 keys of texture coordinates (q, 2) float64, from their bits: the same bits, the same key.
+
+    Sorting and searching uint64 is several times faster than complex (u + iv) or row-wise keys; distinct
+    coordinates may share a key, so a lookup compares the coordinates too.
+    """
+    bits = np.ascontiguousarray(uv, dtype=np.float64).view(np.uint64)
+    with np.errstate(over="ignore"):
+        return bits[:, 0] * np.uint64(0x9E3779B97F4A7C15) ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)
+                                                              + (bits[:, 1] >> np.uint64(29)))
+
+
 @dataclass
 class UVLocation:
     """Where texture coordinates lie in a mesh's atlas.
@@ -126,29 +138,43 @@ class UVIndex:
         self.mesh = mesh
         lifted = np.column_stack([mesh.UV, np.zeros(len(mesh.UV))])
         self.surface = prepare_surface(lifted, mesh.F_uv, origin=np.array([0.5, 0.5, 0.0]), find_boundary=False)
-        # located coordinates, as complex keys u + iv sorted, and their answers in the same order
-        self._keys = np.zeros(0, dtype=np.complex128)
-        self._known = UVLocation(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0))
+        # located coordinates by their hash (sorted), the coordinates, and their answers in the same order
+        self._keys = np.zeros(0, dtype=np.uint64)
+        self._uv = np.zeros((0, 2))
+        self._face, self._bary, self._distance = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0)
 
     def locate(self, uv: np.ndarray) -> UVLocation:
         """Locate texture coordinates ``uv`` (q, 2) float64 (OBJ convention) in the mesh's UV triangles: the
         closest triangle, the query's float64 barycentrics in it (clipped to the triangle outside the atlas).
         Coordinates located before are answered from memory."""
         uv = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 2)
-        keys = uv[:, 0] + 1j * uv[:, 1]
-        at = np.searchsorted(self._keys, keys).clip(max=max(len(self._keys) - 1, 0))
-        known = (self._keys[at] == keys) if len(self._keys) else np.zeros(len(keys), dtype=bool)
-        new_keys, first = np.unique(keys[~known], return_index=True)
-        if len(new_keys):
-            fresh = self._locate(uv[~known][first])
-            keys_all = np.concatenate([self._keys, new_keys])
-            order = np.argsort(keys_all, kind="stable")
-            self._keys = keys_all[order]
-            self._known = UVLocation(np.concatenate([self._known.face, fresh.face])[order],
-                                     np.concatenate([self._known.barycentric, fresh.barycentric])[order],
-                                     np.concatenate([self._known.distance, fresh.distance])[order])
-            at = np.searchsorted(self._keys, keys)
-        return UVLocation(self._known.face[at], self._known.barycentric[at], self._known.distance[at])
+        keys = hash_uv(uv)
+        face = np.zeros(len(uv), dtype=np.int64)
+        bary, distance = np.zeros((len(uv), 3)), np.zeros(len(uv))
+        known = np.zeros(len(uv), dtype=bool)
+        if len(self._keys):
+            at = np.searchsorted(self._keys, keys).clip(max=len(self._keys) - 1)
+            known = (self._keys[at] == keys) & (self._uv[at] == uv).all(axis=1)  # a hash collision is not known
+            face[known], bary[known], distance[known] = (self._face[at[known]], self._bary[at[known]],
+                                                         self._distance[at[known]])
+        if not known.all():
+            new_keys, first, inverse = np.unique(keys[~known], return_index=True, return_inverse=True)
+            fresh_uv = uv[~known][first]
+            fresh = self._locate(fresh_uv)
+            exact = (uv[~known] == fresh_uv[inverse]).all(axis=1)
+            rows = np.flatnonzero(~known)
+            face[rows], bary[rows], distance[rows] = fresh.face[inverse], fresh.barycentric[inverse], fresh.distance[inverse]
+            if not exact.all():  # two new coordinates share a hash: the others are located on their own
+                alone = self._locate(uv[rows[~exact]])
+                face[rows[~exact]], bary[rows[~exact]], distance[rows[~exact]] = (alone.face, alone.barycentric,
+                                                                                  alone.distance)
+            order = np.argsort(np.concatenate([self._keys, new_keys]), kind="stable")
+            self._keys = np.concatenate([self._keys, new_keys])[order]
+            self._uv = np.concatenate([self._uv, fresh_uv])[order]
+            self._face = np.concatenate([self._face, fresh.face])[order]
+            self._bary = np.concatenate([self._bary, fresh.barycentric])[order]
+            self._distance = np.concatenate([self._distance, fresh.distance])[order]
+        return UVLocation(face, bary, distance)
 
     def _locate(self, uv: np.ndarray) -> UVLocation:
         """:meth:`locate` without the memory."""
@@ -230,7 +256,8 @@ def remesh_onto(common: TexturedMesh, mesh: TexturedMesh, source: str | Path = "
     n = len(common.V)
     corners_v, corners_uv = common.F.ravel(), common.F_uv.ravel()
     # each (vertex, uv) pair once: a seam vertex has one per chart
-    pairs = np.unique(np.column_stack([corners_v, corners_uv]), axis=0)
+    keys = np.unique(corners_v.astype(np.int64) * len(common.UV) + corners_uv)  # 1-D: far faster than axis=0
+    pairs = np.column_stack([keys // len(common.UV), keys % len(common.UV)])
     counts = np.bincount(pairs[:, 0], minlength=n).astype(np.float64)
     if (counts == 0).any():
         raise ValueError(f"{int((counts == 0).sum())} vertices of the common triangulation are in no face")
@@ -255,32 +282,69 @@ def edge_uv_midpoints(mesh: TexturedMesh) -> np.ndarray:
     return mid
 
 
+def offsets_at_uv(mesh: TexturedMesh, index: UVIndex, uv: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How far ``points`` (q, 3) float64 mm lie from where their texture coordinates ``uv`` (q, 2) land on
+    ``mesh``: ((q,) along the normal of the face they land in, (q,) within its plane), float64 mm."""
+    location = index.locate(uv)
+    on_surface = positions_at_uv(mesh, location)
+    corners = mesh.V[mesh.F[location.face]]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-30)
+    offset = points - on_surface
+    along = np.einsum("qc,qc->q", offset, normal)
+    return np.abs(along), np.linalg.norm(offset - along[:, None] * normal, axis=1)
+
+
 def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequence[TexturedMesh],
-                 indices: Mapping[str, UVIndex] | None = None) -> np.ndarray:
-    """(e,) float64 mm: per edge of the common triangulation, the largest distance over ``meshes`` (by name, or a
-    sequence) between the point its texture midpoint lands on and the midpoint of its two remeshed ends (the
-    straight edge's deviation from the surface it stands for). ``indices``: their :class:`UVIndex` by name."""
+                 indices: Mapping[str, UVIndex] | None = None, tangential_scale: float | None = None) -> np.ndarray:
+    """(e,) float64 mm: per edge of the common triangulation (``unique_edges(common.F)``), the largest error over
+    ``meshes`` (by name, or a sequence; ``indices``: their :class:`UVIndex` by name) of the straight edge
+    against the surface it stands for.
+
+    - ``tangential_scale`` None: the distance between the point the edge's texture midpoint lands on and the
+      midpoint of its two remeshed ends.
+    - Otherwise that offset split along the landing face's normal and within its plane, the error being
+      ``max(normal, tangential_scale * tangential)``; the same at every face's texture centre (against the mean
+      of its three remeshed corners), charged to the face's longest edge in that expression. The normal part
+      is the surface's deviation; the tangential part only slides the texture, so it can be allowed more.
+    """
     if not isinstance(meshes, Mapping):
         meshes = {f"mesh {i}": m for i, m in enumerate(meshes)}
-    edges, _ = unique_edges(common.F)
+    edges, face_edge = unique_edges(common.F)
     mid_uv = edge_uv_midpoints(common)
+    centre_uv = common.UV[common.F_uv].mean(axis=1) if tangential_scale is not None else None
     worst = np.zeros(len(edges))
     for name, mesh in meshes.items():
         index = (indices or {}).get(name) or UVIndex(mesh)
         ends = remesh_onto(common, mesh, name, index).mesh.V
-        on_surface = positions_at_uv(mesh, index.locate(mid_uv))
         chord = 0.5 * (ends[edges[:, 0]] + ends[edges[:, 1]])
-        worst = np.maximum(worst, np.linalg.norm(on_surface - chord, axis=1))
+        if tangential_scale is None:
+            worst = np.maximum(worst, np.linalg.norm(positions_at_uv(mesh, index.locate(mid_uv)) - chord, axis=1))
+            continue
+        normal, tangential = offsets_at_uv(mesh, index, mid_uv, chord)
+        worst = np.maximum(worst, np.maximum(normal, tangential_scale * tangential))
+        normal, tangential = offsets_at_uv(mesh, index, centre_uv, ends[common.F].mean(axis=1))
+        length = np.linalg.norm(ends[edges[:, 0]] - ends[edges[:, 1]], axis=1)
+        longest = face_edge[np.arange(len(face_edge)), np.argmax(length[face_edge], axis=1)]
+        np.maximum.at(worst, longest, np.maximum(normal, tangential_scale * tangential))
     return worst
 
 
 def fit_triangulation(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequence[TexturedMesh],
                       tolerance_mm: float,
                       max_vertices: int, max_rounds: int = 8,
-                      progress: Callable[[str], None] = print) -> TexturedMesh:
+                      progress: Callable[[str], None] = print,
+                      tangential_tolerance_mm: float | None = None) -> TexturedMesh:
     """Split the common triangulation's edges whose chord misses any expression's surface by more than
     ``tolerance_mm`` (:func:`chord_errors`), round after round, until none is left, ``max_rounds`` have run, or
     the next round would pass ``max_vertices`` (then the worst edges are split up to it).
+
+    ``tangential_tolerance_mm`` None: the whole offset of an edge's midpoint counts against ``tolerance_mm``.
+    Otherwise the offset along the surface's normal, at edge midpoints and face centres, counts against
+    ``tolerance_mm`` and the offset along the surface (where the texture lands) against
+    ``tangential_tolerance_mm``: where the registration's parametrisation stretches between expressions (its
+    untangling moves vertices along the surface), a flat patch needs no splitting for its texture to slide a
+    tenth of a millimetre.
 
     A round splits the bad edges alone (each triangle's red-green template), which converges where a
     surface is smooth. Where an expression's surface is folded (crumpled parts no camera saw), the edges a
@@ -291,9 +355,10 @@ def fit_triangulation(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] |
     if not isinstance(meshes, Mapping):
         meshes = {f"mesh {i}": m for i, m in enumerate(meshes)}
     indices = {name: UVIndex(mesh) for name, mesh in meshes.items()}
+    scale = None if tangential_tolerance_mm is None else tolerance_mm / tangential_tolerance_mm
     previous = None
     for round_ in range(max_rounds):
-        errors = chord_errors(common, meshes, indices)
+        errors = chord_errors(common, meshes, indices, scale)
         split = errors > tolerance_mm
         count = int(split.sum())
         stalled = previous is not None and count > STALLED * previous

@@ -19,14 +19,20 @@ class RemeshSettings:
             than this at its midpoint is split there (:func:`gpja.apply.remesh.fit_triangulation`). Inside a face
             the deviation can reach about 4/3 of it (a quadratic surface: 1/4 of the face's sag at an edge's
             midpoint, 1/3 at its centroid); the remesh logs record the deviation measured.
+        tangential_tolerance_mm: None: the whole offset of an edge's midpoint from where its texture coordinate
+            lands counts against ``tolerance_mm``. A number: only the offset along the surface's normal does
+            (checked at face centres too), and the offset along the surface, which slides the texture without
+            moving the surface, counts against this (docs/experiments.md, "The common triangulation's
+            tangential tolerance").
         max_vertices: the common triangulation never grows beyond this.
         max_rounds: at most this many splitting rounds.
     """
 
     initial_vertices: int = 40000
     tolerance_mm: float = 0.02
+    tangential_tolerance_mm: float | None = 0.1
     max_vertices: int = 200000
-    max_rounds: int = 10
+    max_rounds: int = 16
 
     from_config = classmethod(from_section)
 
@@ -36,6 +42,8 @@ class RemeshSettings:
                              f"{self.max_vertices}")
         if not self.tolerance_mm > 0:
             raise ValueError(f"tolerance_mm must be positive, got {self.tolerance_mm}")
+        if self.tangential_tolerance_mm is not None and not self.tangential_tolerance_mm > 0:
+            raise ValueError(f"tangential_tolerance_mm must be positive or null, got {self.tangential_tolerance_mm}")
         if self.max_rounds < 0:
             raise ValueError(f"max_rounds must be >= 0, got {self.max_rounds}")
 

@@ -16,7 +16,8 @@ import pytest
 
 from gpja.apply import remesh as R
 from gpja.apply.remesh import (SEAM_AGREEMENT_MM, UV_OFF_ATLAS, barycentric_2d, chord_errors, common_triangulation,
-                               UVIndex, edge_uv_midpoints, fit_triangulation, locate_uv, positions_at_uv, remesh_onto)
+                               UVIndex, edge_uv_midpoints, fit_triangulation, locate_uv, offsets_at_uv,
+                               positions_at_uv, remesh_onto)
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh, unique_edges
 from gpja.register.remesh import refine_by_factor
@@ -245,6 +246,18 @@ def test_uv_index_answers_from_memory_what_a_fresh_index_answers(template, expre
     assert len(index._keys) == len(np.unique(uv[:, 0] + 1j * uv[:, 1])) + 1  # each coordinate located once
 
 
+def test_uv_index_answers_right_when_every_coordinate_shares_one_hash(template, expression_rest, monkeypatch):
+    # the memory's keys are hashes: with the worst hash (one key for all) the answers are still a fresh index's
+    monkeypatch.setattr(R, "hash_uv", lambda uv: np.zeros(len(uv), dtype=np.uint64))
+    uv = expression_rest.UV
+    index = UVIndex(template)
+    for query in (uv[:40], uv[20:90], uv[::-1]):
+        got, want = index.locate(query), R.UVIndex._locate(index, query)
+        np.testing.assert_array_equal(got.face, want.face)
+        np.testing.assert_array_equal(got.barycentric, want.barycentric)
+        np.testing.assert_array_equal(got.distance, want.distance)
+
+
 def distance_to_atlas(mesh: TexturedMesh, p: np.ndarray) -> float:
     """Exact float64 distance from the point ``p`` (2,) to the union of ``mesh``'s UV triangles (brute force)."""
     tri = mesh.UV[mesh.F_uv]  # counter-clockwise (test_fixture_is_a_closed_seamed_sphere)
@@ -393,6 +406,53 @@ def test_chord_errors_see_a_bump(template, common2, expression, expression_rest)
     np.testing.assert_allclose(chord_errors(common2, [expression, bump]), errors, rtol=0, atol=REMESH_EXACT_MM)
 
 
+def flat_grid(n: int = 6, size_mm: float = 30.0) -> TexturedMesh:
+    """A square grid in the plane z = 0 (n x n cells, two triangles each), UV = x / size, y / size."""
+    t = np.linspace(0.0, 1.0, n + 1)
+    X, Y = np.meshgrid(t, t, indexing="ij")
+    UV = np.column_stack([X.ravel(), Y.ravel()])
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    return TexturedMesh(np.column_stack([size_mm * UV, np.zeros(len(UV))]), F, UV, F.copy())
+
+
+def test_offsets_at_uv_split_a_known_offset(template):
+    # analytic: a point moved off its landing point by a along the face normal and b within the face's plane
+    index = UVIndex(template)
+    uv = edge_uv_midpoints(template)[:30]
+    location = index.locate(uv)
+    corners = template.V[template.F[location.face]]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    in_plane = corners[:, 1] - corners[:, 0]
+    in_plane /= np.linalg.norm(in_plane, axis=1, keepdims=True)
+    a, b = np.linspace(-0.3, 0.3, 30), np.linspace(0.0, 0.5, 30)
+    points = positions_at_uv(template, location) + a[:, None] * normal + b[:, None] * in_plane
+    along, within = offsets_at_uv(template, index, uv, points)
+    np.testing.assert_allclose(along, np.abs(a), rtol=0, atol=REMESH_EXACT_MM)
+    np.testing.assert_allclose(within, b, rtol=0, atol=REMESH_EXACT_MM)
+
+
+def test_chord_errors_split_a_slide_along_a_flat_surface_from_a_deviation():
+    # a flat grid warped within its plane (a non-affine slide): every chord lies on the surface, its texture
+    # does not: the whole offset sees the slide, the normal part nothing, the tangential part the slide scaled
+    grid = flat_grid()
+    common = common_triangulation(grid, 2 * len(grid.V))
+    fine = refine_by_factor(refine_by_factor(grid, 3.0), 2.0)
+    x, y = fine.V[:, 0], fine.V[:, 1]
+    slid = fine.with_vertices(np.column_stack([x + 2.0 * np.sin(y / 6.0), y + 1.5 * np.cos(x / 7.0), fine.V[:, 2]]))
+    whole = chord_errors(common, [slid])
+    assert whole.max() > 0.05  # measured 0.17 mm
+    assert chord_errors(common, [slid], tangential_scale=0.0).max() <= REMESH_EXACT_MM
+    scaled = chord_errors(common, [slid], tangential_scale=0.25)
+    assert (scaled >= 0.25 * whole - REMESH_EXACT_MM).all()  # the edges' own, at least (face centres add to it)
+    assert scaled.max() <= 0.25 * 4.0 * whole.max()  # measured 0.042 = 0.25 x 0.17: the centres add nothing here
+    # lifted out of the plane by a bump: now the normal part is there too
+    bumped_grid = slid.with_vertices(slid.V + np.column_stack([0 * x, 0 * x, 3.0 * np.exp(-((x - 15) ** 2 + (y - 15) ** 2) / 40)]))
+    assert chord_errors(common, [bumped_grid], tangential_scale=0.0).max() > 0.05
+
+
 # --- 7. fit_triangulation ---------------------------------------------------------------------------------
 
 def test_fit_triangulation_converges_below_the_tolerance(template, common2, expression_rest):
@@ -412,6 +472,16 @@ def test_fit_triangulation_converges_below_the_tolerance(template, common2, expr
         <= CLOSEST_POINT_F32_MM
     out = remesh_onto(fit, bump)
     assert out.seam_disagreement_mm <= REMESH_EXACT_MM
+
+
+def test_fit_triangulation_with_a_tangential_tolerance_converges_on_fewer_vertices(common2, expression_rest):
+    bump = bumped(expression_rest)
+    quiet = dict(max_vertices=100_000, max_rounds=FIT_MAX_ROUNDS, progress=lambda s: None)
+    whole = fit_triangulation(common2, [bump], FIT_TOLERANCE_MM, **quiet)
+    split = fit_triangulation(common2, [bump], FIT_TOLERANCE_MM, tangential_tolerance_mm=4 * FIT_TOLERANCE_MM, **quiet)
+    assert chord_errors(split, [bump], tangential_scale=0.25).max() <= FIT_TOLERANCE_MM
+    assert len(common2.V) < len(split.V) < len(whole.V)
+    np.testing.assert_array_equal(split.V[: len(common2.V)], common2.V)
 
 
 def test_fit_triangulation_respects_max_vertices(common2, expression_rest):
