@@ -47,23 +47,32 @@ def folded_among(normals: np.ndarray, adjacency: np.ndarray, faces: np.ndarray) 
     return (normals[faces] * around).sum(axis=1) < 0.0
 
 
-def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iterations: int, rings: int
-                        ) -> tuple[np.ndarray, dict]:
+def turned_faces(V: np.ndarray, reference: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(m,) bool: faces ``F`` whose normal at ``V`` (n, 3) points against its normal at ``reference`` (n, 3), mm (the
+    same mesh before a deformation). A pleat whose creases are rounded has no folded face (each face agrees with
+    its neighbours) but its middle layer is turned over against where it came from."""
+    return (unit_normals(V, F) * unit_normals(reference, F)).sum(axis=1) < 0.0
+
+
+def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iterations: int, rings: int,
+                        reference: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Smooth the folds out of a mesh that lies on ``surface`` without leaving it.
 
-    Each round takes the vertices of the folded faces (:func:`folded_faces`) and ``rings`` rings
-    around them, moves each to the mean of its neighbours (uniform Laplacian) and back onto ``surface`` at the
-    closest point; rim vertices stay. Stops when nothing is folded or after ``iterations`` rounds. Vertices
-    away from the folds do not move.
+    Each round takes the vertices of the folded faces (:func:`folded_faces`; with ``reference``, also the faces
+    turned over against it, :func:`turned_faces`) and ``rings`` rings around them, moves each to the mean of
+    its neighbours (uniform Laplacian) and back onto ``surface`` at the closest point; rim vertices stay. Stops
+    when nothing is folded or after ``iterations`` rounds. Vertices away from the folds do not move.
 
     Args:
         V: (n, 3) float64 mm on ``surface``; F: (m, 3) int faces.
         surface: the expression's surface (``gpja.surface.prepare_surface``).
         iterations: most rounds (0 = none: ``V`` returned unchanged).
         rings: neighbourhood around the folded faces' vertices that moves with them.
+        reference: (n, 3) float64 mm, the mesh's positions before the deformation that folded it, or None.
     Returns:
-        The untangled (n, 3) float64 positions (on ``surface``) and a log: ``folded_before``, ``folded_after``,
-        ``rounds``, ``moved_vertices`` (ever moved), ``max_move_mm``.
+        The untangled (n, 3) float64 positions (on ``surface``) and a log: ``folded_before``, ``folded_after``
+        (faces folded or, with ``reference``, turned), ``rounds``, ``moved_vertices`` (ever moved),
+        ``max_move_mm``; with ``reference`` also ``turned_before`` and ``turned_after``.
     """
     from gpja.register.laplacian import uniform_laplacian
     from gpja.render.silhouettes import face_adjacency
@@ -72,9 +81,15 @@ def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iteratio
     F = np.asarray(F, dtype=np.int64)
     adjacency = face_adjacency(F)
     normals = unit_normals(V, F)
-    folded = folded_among(normals, adjacency, np.arange(len(F)))
+    creased = folded_among(normals, adjacency, np.arange(len(F)))
+    reference_normals = None if reference is None else unit_normals(np.asarray(reference, dtype=np.float64), F)
+    turned = np.zeros(len(F), dtype=bool) if reference_normals is None else \
+        (normals * reference_normals).sum(axis=1) < 0.0
+    folded = creased | turned
     log = {"folded_before": int(folded.sum()), "folded_after": int(folded.sum()), "rounds": 0,
            "moved_vertices": 0, "max_move_mm": 0.0}
+    if reference_normals is not None:
+        log.update(turned_before=int(turned.sum()), turned_after=int(turned.sum()))
     if iterations <= 0 or not folded.any():
         return V, log
     L = uniform_laplacian(V, F)
@@ -100,9 +115,14 @@ def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iteratio
         near = adjacency[touched].ravel()
         check = np.union1d(touched, near[near >= 0])
         folded[check] = folded_among(normals, adjacency, check)
+        if reference_normals is not None:
+            turned[touched] = (normals[touched] * reference_normals[touched]).sum(axis=1) < 0.0
+            folded[check] |= turned[check]
         log["rounds"] = round_
         if not folded.any():
             break
+    if reference_normals is not None:
+        log["turned_after"] = int(turned.sum())
     log.update(folded_after=int(folded.sum()), moved_vertices=int(ever.sum()),
                max_move_mm=float(np.linalg.norm(V - start, axis=1).max()))
     return V, log

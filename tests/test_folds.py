@@ -3,7 +3,7 @@ neighbour, on a plane."""
 import numpy as np
 
 from gpja.apply.reparam import flipped_faces
-from gpja.folds import folded_faces, untangle_on_surface
+from gpja.folds import folded_faces, turned_faces, untangle_on_surface
 from gpja.render.silhouettes import face_adjacency
 from gpja.surface import prepare_surface
 from tests.tolerances import CLOSEST_POINT_F32_MM
@@ -56,3 +56,43 @@ def test_untangle_unfolds_a_grid_and_stays_on_its_plane():
     far = np.abs(V[:, :2] - [3.0, 3.0]).max(axis=1) >= 4  # beyond the folded fan and one ring
     np.testing.assert_array_equal(out[far], moved[far])
     assert log["moved_vertices"] < len(V) and log["max_move_mm"] > 0.5
+
+
+def rolled_rim(V: np.ndarray) -> np.ndarray:
+    """The 8 x 8 grid with its last column (x = 7) laid back to x = 5.5, past the column x = 6, in the plane: the
+    strip between them is turned over, and at the rim no face points against its neighbours' sum."""
+    moved = V.copy()
+    moved[V[:, 0] == 7, 0] = 5.5
+    return moved
+
+
+def test_turned_faces_analytic_on_a_flat_grid():
+    V, F = flat_grid()
+    adjacency = face_adjacency(F)
+    assert not turned_faces(V, V, F).any()
+    moved = pushed(V)
+    np.testing.assert_array_equal(turned_faces(moved, V, F), folded_faces(moved, F, adjacency))
+    assert turned_faces(V * np.array([1.0, -1.0, -1.0]), V, F).all()  # turned as a whole, folded nowhere
+    rolled = rolled_rim(V)
+    strip = V[F][:, :, 0].max(axis=1) == 7
+    np.testing.assert_array_equal(turned_faces(rolled, V, F), strip)
+    assert not folded_faces(rolled, F, adjacency).any()  # what the fold test misses
+
+
+def test_untangle_with_a_reference_lays_back_what_the_fold_test_misses():
+    """The rolled rim: folds alone see nothing and move nothing; with the flat grid as the reference the turned
+    strip is smoothed back (its inner column pulled behind the rim's), on the plane, but for its two end faces,
+    whose only movable vertex is the one the rim's rows hold (rim vertices stay)."""
+    V, F = flat_grid()
+    rolled = rolled_rim(V)
+    plane = prepare_surface(np.array([[-5.0, -5, 0], [15, -5, 0], [15, 15, 0], [-5, 15, 0]]),
+                            np.array([[0, 1, 2], [0, 2, 3]]), find_boundary=False)
+    same, log = untangle_on_surface(rolled, F, plane, iterations=50, rings=1)
+    np.testing.assert_array_equal(same, rolled)
+    assert log["folded_before"] == 0 and "turned_before" not in log
+    out, log = untangle_on_surface(rolled, F, plane, iterations=50, rings=1, reference=V)
+    assert log["turned_before"] == 2 * 7 and log["turned_after"] == 2
+    left = turned_faces(out, V, F)
+    assert set(np.round(V[F[left]][:, :, 1].min(axis=1))) | set(np.round(V[F[left]][:, :, 1].max(axis=1))) <= {0, 1, 6, 7}
+    assert (np.isin(V[F[left]][:, :, 1], [0.0, 7.0])).any(axis=1).all()  # each touches a rim row
+    assert np.abs(out[:, 2]).max() < CLOSEST_POINT_F32_MM

@@ -70,7 +70,7 @@ from gpja.register.flow import FlowSettings
 from gpja.register.hold import TangentialHold, scan_gap
 from gpja.register.hra import COLOR_GRADIENTS, ExpressionTargets, Switches, along_surface, render_constraint
 from gpja.register.largesteps import LargeStepsParametrization
-from gpja.register.remesh import refine_by_factor
+from gpja.register.remesh import refine_by_factor, refine_carrying
 from gpja.render import Topology
 from gpja.settings import from_section
 
@@ -156,6 +156,9 @@ class Schedule:
             rounds that smooth the mesh's folded triangles out along its own surface (``gpja.folds``); the
             surface stays, the texture coordinates of the crumpled parts move back into order.
         untangle_rings: vertex rings around a fold that move with it.
+        untangle_turned: beyond the paper (False = folds alone): the untangling also smooths the faces turned over
+            against the template (``gpja.folds.turned_faces``; ``optimise``'s ``orientation``): pleats with rounded
+            creases, which a fold's test misses (the neck's cap, under the jaw).
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -183,6 +186,7 @@ class Schedule:
     seed: int = 0
     untangle_iterations: int = 0
     untangle_rings: int = 1
+    untangle_turned: bool = False
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -333,11 +337,14 @@ def warmup_switches(switches: Switches, schedule: Schedule) -> Switches:
 def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches, schedule: Schedule, *,
              texture: torch.Tensor, mask_texture: torch.Tensor, render=None, cull_backfaces: bool = True,
              progress: Callable[[str], None] = print, progress_every: int = 50,
-             on_stage: Callable[[str, TexturedMesh], None] | None = None) -> tuple[TexturedMesh, RegistrationLog]:
+             on_stage: Callable[[str, TexturedMesh], None] | None = None,
+             orientation: np.ndarray | None = None) -> tuple[TexturedMesh, RegistrationLog]:
     """Deform ``mesh`` towards one expression, level by level.
 
     Args:
         mesh: the starting mesh (mm) with UVs; refined between levels.
+        orientation: (n, 3) float64 mm, positions on ``mesh``'s topology whose faces' orientation the
+            untangling keeps (``untangle_turned``): the template's, in the workflow; None = ``mesh``'s own.
         targets: reference images, scan targets, cameras and lighting.
         switches: which constraints (and the mouth mask) to use.
         texture: (T, T, 3) albedo; mask_texture: (T', T', 1) mouth mask (1 = use, 0 = mouth interior).
@@ -354,6 +361,10 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     """
     switches.rotation()  # fails early when every constraint is off
     log = RegistrationLog()
+    # the orientation the untangling keeps (untangle_turned), carried through the refinements
+    reference = np.array(mesh.V if orientation is None else orientation, dtype=np.float64)
+    if reference.shape != mesh.V.shape:
+        raise ValueError(f"orientation has shape {reference.shape}, the mesh's vertices {mesh.V.shape}")
     common = dict(targets=targets, texture=texture, mask_texture=mask_texture, render=render,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
     hold = None
@@ -379,6 +390,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
         start = time.perf_counter()
         if level > 0:
+            # the start's positions on this level's topology (the same splits: refinement picks edges by the mesh)
+            reference = refine_carrying(mesh, schedule.refine_factor, reference)[1]
             if hold is None:
                 mesh = refine_by_factor(mesh, schedule.refine_factor)
             else:
@@ -396,24 +409,31 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage(f"level{level + 1}", mesh)
     if schedule.untangle_iterations > 0:
-        mesh = untangle_stage(mesh, schedule, progress, log, on_stage)
+        if reference.shape != mesh.V.shape:  # the carried start must follow every refinement
+            raise RuntimeError(f"the start's positions ({reference.shape}) do not match the mesh ({mesh.V.shape})")
+        mesh = untangle_stage(mesh, schedule, progress, log, on_stage,
+                              reference if schedule.untangle_turned else None)
     return mesh, log
 
 
 def untangle_stage(mesh: TexturedMesh, schedule: Schedule, progress: Callable[[str], None], log: RegistrationLog,
-                   on_stage: Callable[[str, TexturedMesh], None] | None) -> TexturedMesh:
+                   on_stage: Callable[[str, TexturedMesh], None] | None,
+                   reference: np.ndarray | None = None) -> TexturedMesh:
     """The folds of the registered mesh smoothed out along its own surface (``gpja.folds``), logged and saved as
-    stage ``untangle``; returns the mesh (same topology and texture coordinates, folds' vertices moved)."""
+    stage ``untangle``; returns the mesh (same topology and texture coordinates, folds' vertices moved).
+    ``reference``: (n, 3) the start mesh's positions on this topology; its turned-over faces count as folds."""
     from gpja.folds import untangle_on_surface
     from gpja.surface import prepare_surface
 
     start = time.perf_counter()
     V, entry = untangle_on_surface(mesh.V, mesh.F, prepare_surface(mesh.V, mesh.F, find_boundary=False),
-                                   int(schedule.untangle_iterations), int(schedule.untangle_rings))
+                                   int(schedule.untangle_iterations), int(schedule.untangle_rings), reference)
     mesh = mesh.with_vertices(V)
     entry["seconds"] = round(time.perf_counter() - start, 3)
     log.levels.append({"stage": "untangle", **entry})
-    progress(f"untangle: {entry['folded_before']} -> {entry['folded_after']} folded faces in {entry['rounds']} "
+    turned = (f" (of them turned over against the template: {entry['turned_before']} -> {entry['turned_after']})"
+              if "turned_before" in entry else "")
+    progress(f"untangle: {entry['folded_before']} -> {entry['folded_after']} folded faces{turned} in {entry['rounds']} "
              f"rounds, {entry['moved_vertices']} vertices moved (at most {entry['max_move_mm']:.2f} mm along the "
              f"surface), {entry['seconds']:.1f} s")
     if on_stage is not None:

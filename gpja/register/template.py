@@ -96,7 +96,8 @@ class TemplateSettings:
                                                    "flow_levels", "flow_smoothness", "flow_still_mm", "flow_chroma",
                                                    "color_gradient",
                                                    "average_iterations", "views_per_iteration", "image_factor",
-                                                   "seed", "untangle_iterations", "untangle_rings")})
+                                                   "seed", "untangle_iterations", "untangle_rings",
+                                                   "untangle_turned")})
     texture_method: str = "fusion"
     texture_size: int = 1024
     texture_size_from_images: bool = True
