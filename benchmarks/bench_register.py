@@ -141,6 +141,7 @@ def main() -> None:
     # the lighting the template's texture was fused under (lighting.json), as `gpja register` reads it
     targets = expression_targets(data, targets_path, read_template_lighting(template_dir))
     template, mask = read_template(template_dir)
+    orientation = template.V  # the template's orientation for the untangling's turned faces, as `gpja register`
     if args.compare_start:
         compare_starts(args, template, mask, targets, schedule, data)
         return
@@ -151,10 +152,11 @@ def main() -> None:
         template = start_from(template, read_obj(args.start, load_texture=False), args.start)
     if args.compare_settings:
         other = Schedule.from_config({**settings, **json.loads(args.compare_settings)}, "--compare-settings")
-        compare_schedules(args, template, mask, targets, {"preset": schedule, "compared": other}, data)
+        compare_schedules(args, template, mask, targets, {"preset": schedule, "compared": other}, data, orientation)
         return
     start = time.perf_counter()
-    mesh, log = register(template, mask, targets, schedule, Switches(), progress=lambda m: print(m, file=sys.stderr))
+    mesh, log = register(template, mask, targets, schedule, Switches(), progress=lambda m: print(m, file=sys.stderr),
+                         orientation=orientation)
     seconds = time.perf_counter() - start
     levels = [level_entry(lv) for lv in log.levels]
     print(json.dumps({
@@ -209,14 +211,15 @@ def machine() -> dict:
     return {"cpus": os.cpu_count(), "python": platform.python_version()}
 
 
-def compare_schedules(args, start_mesh, mask, targets, schedules: dict, data) -> None:
-    """Alternate registrations with each of ``schedules`` (name -> Schedule) from one start; print JSON."""
+def compare_schedules(args, start_mesh, mask, targets, schedules: dict, data, orientation=None) -> None:
+    """Alternate registrations with each of ``schedules`` (name -> Schedule) from one start; print JSON.
+    ``orientation``: the template's positions (``register``'s), when ``start_mesh`` is another start."""
     from gpja.register.hra import Switches
     from gpja.register.pipeline import register
 
     def case(schedule):
         return lambda: register(start_mesh, mask, targets, schedule, Switches(),
-                                progress=lambda m: print(m, file=sys.stderr))
+                                progress=lambda m: print(m, file=sys.stderr), orientation=orientation)
 
     runs, medians = time_alternately({name: case(s) for name, s in schedules.items()}, args.repeats, data,
                                      accuracy_scorer(args, Path(args.results) / args.subject / "template"))
@@ -243,7 +246,7 @@ def compare_starts(args, template, mask, targets, schedule, data) -> None:
             with tempfile.TemporaryDirectory() as tmp:
                 return register(mesh0, mask, targets, schedule, Switches(),
                                 on_stage=stage_writer(tmp) if save_stages else None,
-                                progress=lambda m: print(m, file=sys.stderr))
+                                progress=lambda m: print(m, file=sys.stderr), orientation=template.V)
         return run
 
     runs, medians = time_alternately({"template": case(template, False), "tree": case(parent, True)}, args.repeats,
