@@ -51,7 +51,12 @@ def turned_faces(V: np.ndarray, reference: np.ndarray, F: np.ndarray) -> np.ndar
     """(m,) bool: faces ``F`` whose normal at ``V`` (n, 3) points against its normal at ``reference`` (n, 3), mm (the
     same mesh before a deformation). A pleat whose creases are rounded has no folded face (each face agrees with
     its neighbours) but its middle layer is turned over against where it came from."""
-    return (unit_normals(V, F) * unit_normals(reference, F)).sum(axis=1) < 0.0
+    return opposed(unit_normals(V, F), unit_normals(reference, F))
+
+
+def opposed(normals: np.ndarray, reference_normals: np.ndarray) -> np.ndarray:
+    """(k,) bool: rows of two (k, 3) normal arrays that point against each other (a zero normal opposes none)."""
+    return np.einsum("kc,kc->k", normals, reference_normals) < 0.0
 
 
 def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iterations: int, rings: int,
@@ -83,8 +88,7 @@ def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iteratio
     normals = unit_normals(V, F)
     creased = folded_among(normals, adjacency, np.arange(len(F)))
     reference_normals = None if reference is None else unit_normals(np.asarray(reference, dtype=np.float64), F)
-    turned = np.zeros(len(F), dtype=bool) if reference_normals is None else \
-        (normals * reference_normals).sum(axis=1) < 0.0
+    turned = np.zeros(len(F), dtype=bool) if reference_normals is None else opposed(normals, reference_normals)
     folded = creased | turned
     log = {"folded_before": int(folded.sum()), "folded_after": int(folded.sum()), "rounds": 0,
            "moved_vertices": 0, "max_move_mm": 0.0}
@@ -116,7 +120,7 @@ def untangle_on_surface(V: np.ndarray, F: np.ndarray, surface: Surface, iteratio
         check = np.union1d(touched, near[near >= 0])
         folded[check] = folded_among(normals, adjacency, check)
         if reference_normals is not None:
-            turned[touched] = (normals[touched] * reference_normals[touched]).sum(axis=1) < 0.0
+            turned[touched] = opposed(normals[touched], reference_normals[touched])
             folded[check] |= turned[check]
         log["rounds"] = round_
         if not folded.any():

@@ -33,6 +33,7 @@ import numpy as np
 
 from gpja.apply.remesh import locate_on_atlas, positions_at_uv
 from gpja.errors import InputError
+from gpja.folds import turned_faces
 from gpja.mesh import TexturedMesh
 from gpja.render.rasterize import BACKGROUND
 from gpja.render.uv_raster import rasterize_uv
@@ -318,15 +319,10 @@ def flipped_faces(V_a: np.ndarray, V_b: np.ndarray, F: np.ndarray) -> int:
         V_a, V_b: (n, 3) float64 positions (mm) of two meshes of one topology (e.g. adjacent expressions).
         F: (m, 3) int faces, shared.
     Returns:
-        Faces with ``n_a . n_b < 0`` (unnormalised normals); a face degenerate in either mesh counts as not
+        Faces with ``n_a . n_b < 0`` (``gpja.folds.turned_faces``); a face degenerate in either mesh counts as not
         flipped.
     """
     V_a, V_b = np.asarray(V_a, dtype=np.float64), np.asarray(V_b, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
     if V_a.shape != V_b.shape:
         raise ValueError(f"the meshes have {V_a.shape} and {V_b.shape} vertices")
-
-    def normals(V):
-        return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-
-    return int(((normals(V_a) * normals(V_b)).sum(axis=1) < 0).sum())
+    return int(turned_faces(V_b, V_a, np.asarray(F, dtype=np.int64)).sum())

@@ -362,9 +362,11 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     switches.rotation()  # fails early when every constraint is off
     log = RegistrationLog()
     # the orientation the untangling keeps (untangle_turned), carried through the refinements
-    reference = np.array(mesh.V if orientation is None else orientation, dtype=np.float64)
-    if reference.shape != mesh.V.shape:
-        raise ValueError(f"orientation has shape {reference.shape}, the mesh's vertices {mesh.V.shape}")
+    reference = None
+    if schedule.untangle_turned and schedule.untangle_iterations > 0:
+        reference = np.array(mesh.V if orientation is None else orientation, dtype=np.float64)
+        if reference.shape != mesh.V.shape:
+            raise ValueError(f"orientation has shape {reference.shape}, the mesh's vertices {mesh.V.shape}")
     common = dict(targets=targets, texture=texture, mask_texture=mask_texture, render=render,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
     hold = None
@@ -391,7 +393,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         start = time.perf_counter()
         if level > 0:
             # the start's positions on this level's topology (the same splits: refinement picks edges by the mesh)
-            reference = refine_carrying(mesh, schedule.refine_factor, reference)[1]
+            if reference is not None:
+                reference = refine_carrying(mesh, schedule.refine_factor, reference)[1]
             if hold is None:
                 mesh = refine_by_factor(mesh, schedule.refine_factor)
             else:
@@ -409,10 +412,9 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage(f"level{level + 1}", mesh)
     if schedule.untangle_iterations > 0:
-        if reference.shape != mesh.V.shape:  # the carried start must follow every refinement
-            raise RuntimeError(f"the start's positions ({reference.shape}) do not match the mesh ({mesh.V.shape})")
-        mesh = untangle_stage(mesh, schedule, progress, log, on_stage,
-                              reference if schedule.untangle_turned else None)
+        if reference is not None and reference.shape != mesh.V.shape:  # it must follow every refinement
+            raise RuntimeError(f"the template's positions ({reference.shape}) do not match the mesh ({mesh.V.shape})")
+        mesh = untangle_stage(mesh, schedule, progress, log, on_stage, reference)
     return mesh, log
 
 
@@ -421,7 +423,7 @@ def untangle_stage(mesh: TexturedMesh, schedule: Schedule, progress: Callable[[s
                    reference: np.ndarray | None = None) -> TexturedMesh:
     """The folds of the registered mesh smoothed out along its own surface (``gpja.folds``), logged and saved as
     stage ``untangle``; returns the mesh (same topology and texture coordinates, folds' vertices moved).
-    ``reference``: (n, 3) the start mesh's positions on this topology; its turned-over faces count as folds."""
+    ``reference``: (n, 3) the template's positions on this topology; faces turned against it count as folds."""
     from gpja.folds import untangle_on_surface
     from gpja.surface import prepare_surface
 
