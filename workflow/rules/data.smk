@@ -25,7 +25,9 @@ if SYNTH["enabled"]:
             log_path("{subject}", "synthesize_subject"),
         benchmark:
             bench_path("{subject}", "synthesize_subject")
-        threads: 2
+        # 1 thread, as every rule: a 2-thread job waits for two free cores, which 1-thread jobs seldom leave
+        # (docs/benchmarks.md "Threads"); its outputs are the same on 1 and 2 threads
+        threads: 1
         resources:
             mem_mb=4000,
             runtime=10,
@@ -74,7 +76,9 @@ rule render_scan_targets:
         log_path("{subject}", "render_scan_targets", "{expression}"),
     benchmark:
         bench_path("{subject}", "render_scan_targets", "{expression}")
-    threads: 2
+    # 1 thread, as every rule: a 2-thread job waits for two free cores, which 1-thread jobs seldom leave
+    # (docs/benchmarks.md "Threads"); its outputs are the same on 1 and 2 threads
+    threads: 1
     resources:
         mem_mb=3000,
         runtime=5,
