@@ -70,34 +70,34 @@ def _vertex_normals_backward(V, faces, starts, corners, normals, inv_norm, grad_
         g_acc[v, 0] = (gx - nx * d) * inv_norm[v]
         g_acc[v, 1] = (gy - ny * d) * inv_norm[v]
         g_acc[v, 2] = (gz - nz * d) * inv_norm[v]
-    # every face normal feeds its three corners' sums
+    # every face normal feeds its three corners' sums; N = a x b with a = V1 - V0, b = V2 - V0:
+    # dN.g = da.(b x g) + db.(g x a), so V1 gets b x g, V2 gets g x a and V0 minus both (once per face, not
+    # once per corner: the per-vertex sums below read them in the same order, the result is the same to the bit)
     for f in nb.prange(faces.shape[0]):
-        for c in range(3):
-            g_face[f, c] = g_acc[faces[f, 0], c] + g_acc[faces[f, 1], c] + g_acc[faces[f, 2], c]
-    # N = a x b with a = V1 - V0, b = V2 - V0: dN.g = da.(b x g) + db.(g x a)
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        gx = g_acc[i0, 0] + g_acc[i1, 0] + g_acc[i2, 0]
+        gy = g_acc[i0, 1] + g_acc[i1, 1] + g_acc[i2, 1]
+        gz = g_acc[i0, 2] + g_acc[i1, 2] + g_acc[i2, 2]
+        ax, ay, az = np.float64(V[i1, 0]) - V[i0, 0], np.float64(V[i1, 1]) - V[i0, 1], np.float64(V[i1, 2]) - V[i0, 2]
+        bx, by, bz = np.float64(V[i2, 0]) - V[i0, 0], np.float64(V[i2, 1]) - V[i0, 1], np.float64(V[i2, 2]) - V[i0, 2]
+        g_face[f, 0], g_face[f, 1], g_face[f, 2] = by * gz - bz * gy, bz * gx - bx * gz, bx * gy - by * gx
+        g_face[f, 3], g_face[f, 4], g_face[f, 5] = gy * az - gz * ay, gz * ax - gx * az, gx * ay - gy * ax
     for v in nb.prange(n_vertices):
         sx = sy = sz = 0.0
         for e in range(starts[v], starts[v + 1]):
             f, k = corners[e] // 3, corners[e] % 3
-            i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-            ax, ay, az = np.float64(V[i1, 0]) - V[i0, 0], np.float64(V[i1, 1]) - V[i0, 1], np.float64(V[i1, 2]) - V[i0, 2]
-            bx, by, bz = np.float64(V[i2, 0]) - V[i0, 0], np.float64(V[i2, 1]) - V[i0, 1], np.float64(V[i2, 2]) - V[i0, 2]
-            gx, gy, gz = g_face[f, 0], g_face[f, 1], g_face[f, 2]
-            # b x g (gradient of V1) and g x a (gradient of V2); V0 gets minus both
-            p1x, p1y, p1z = by * gz - bz * gy, bz * gx - bx * gz, bx * gy - by * gx
-            p2x, p2y, p2z = gy * az - gz * ay, gz * ax - gx * az, gx * ay - gy * ax
             if k == 0:
-                sx -= p1x + p2x
-                sy -= p1y + p2y
-                sz -= p1z + p2z
+                sx -= g_face[f, 0] + g_face[f, 3]
+                sy -= g_face[f, 1] + g_face[f, 4]
+                sz -= g_face[f, 2] + g_face[f, 5]
             elif k == 1:
-                sx += p1x
-                sy += p1y
-                sz += p1z
+                sx += g_face[f, 0]
+                sy += g_face[f, 1]
+                sz += g_face[f, 2]
             else:
-                sx += p2x
-                sy += p2y
-                sz += p2z
+                sx += g_face[f, 3]
+                sy += g_face[f, 4]
+                sz += g_face[f, 5]
         grad_V[v, 0] = sx
         grad_V[v, 1] = sy
         grad_V[v, 2] = sz
@@ -125,7 +125,7 @@ class _VertexNormals(torch.autograd.Function):
         faces, starts, corners, inv_norm = ctx.topology
         grad_V = np.empty(vertices.shape, dtype=vertices.numpy().dtype)
         _vertex_normals_backward(vertices.numpy(), faces, starts, corners, normals.numpy(), inv_norm,
-                                 np.ascontiguousarray(grad_normals.numpy()), np.empty((faces.shape[0], 3)), grad_V)
+                                 np.ascontiguousarray(grad_normals.numpy()), np.empty((faces.shape[0], 6)), grad_V)
         return torch.from_numpy(grad_V), None, None, None
 
 
