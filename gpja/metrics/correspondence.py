@@ -59,6 +59,7 @@ scan), not from where a method moved it.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +70,7 @@ from gpja.errors import InputError
 from gpja.io import read_npz, write_npz
 from gpja.mesh import TexturedMesh, check_vertex_prefix, read_obj
 from gpja.metrics.regions import REGIONS, UNLABELLED, check_landmarks, label_regions, region_statistics
-from gpja.surface import interpolate, prepare_surface
+from gpja.surface import Surface, interpolate, prepare_surface
 
 #: The expression the synthetic subject's template was fitted to (DESIGN.md).
 TEMPLATE_EXPRESSION = "3_mouth_stretch"
@@ -105,23 +106,77 @@ def check_finite(V: np.ndarray, source: str | Path) -> np.ndarray:
     return V
 
 
-def material_coordinates(points: np.ndarray, scan: tuple[np.ndarray, np.ndarray], rest: np.ndarray,
+def material_coordinates(points: np.ndarray, scan: tuple[np.ndarray, np.ndarray] | Surface, rest: np.ndarray,
                          max_distance_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """Rest-space coordinates of points projected onto a scan.
 
     Args:
         points: (q, 3) float64 positions in the scan's expression space, mm.
-        scan: (V (n, 3) float64 mm, F (m, 3) int64) of the scan.
+        scan: (V (n, 3) float64 mm, F (m, 3) int64) of the scan, or its :func:`gpja.surface.prepare_surface`.
         rest: (n, 3) float64 rest coordinate of every scan vertex, mm.
         max_distance_mm: projections farther than this are unusable.
     Returns:
         coords: (q, 3) float64 interpolated rest coordinates, mm.
         usable: (q,) bool, within the cap and not projected onto the scan's boundary.
     """
-    surface = prepare_surface(*scan)  # about the scan's bounding-box centre
+    surface = scan if isinstance(scan, Surface) else prepare_surface(*scan)  # about the scan's bounding-box centre
     cp = surface.closest(points)
     coords = interpolate(surface, cp, rest)
     return coords, (cp.distance <= max_distance_mm) & ~cp.on_boundary
+
+
+@dataclass(frozen=True)
+class CorrespondenceReference:
+    """The side of the correspondence error that does not depend on the registered mesh: the template's material
+    (``m_tpl``, where the expression puts it, the floor) and the expression's prepared scan. Made once by
+    :func:`correspondence_reference`, it scores any number of meshes of that expression (``gpja stages`` scores
+    every stage of a registration: building it once per stage was two thirds of the job).
+
+    Attributes:
+        V_template: (n_template, 3) float64 template positions, mm.
+        scan_expr: the registered expression's scan, prepared (:func:`gpja.surface.prepare_surface`).
+        rest_expr: (n_scan_expr, 3) float64 rest coordinates of its vertices, mm.
+        m_tpl, usable_tpl: :func:`material_coordinates` of the template vertices on the template expression's scan.
+        truth, present, hidden_mm: :func:`material_positions` of ``m_tpl`` on the registered expression's scan.
+        labels: (n_template,) int8 region of each usable template vertex (``UNLABELLED`` elsewhere), or None
+            without landmarks.
+        max_distance_mm: projection cap (module docstring).
+    """
+
+    V_template: np.ndarray
+    scan_expr: Surface
+    rest_expr: np.ndarray
+    m_tpl: np.ndarray
+    usable_tpl: np.ndarray
+    truth: np.ndarray
+    present: np.ndarray
+    hidden_mm: np.ndarray
+    labels: np.ndarray | None
+    max_distance_mm: float
+
+
+def correspondence_reference(V_template: np.ndarray, scan_expr: tuple[np.ndarray, np.ndarray], rest_expr: np.ndarray,
+                             scan_tpl: tuple[np.ndarray, np.ndarray], rest_tpl: np.ndarray, *,
+                             max_distance_mm: float = DEFAULT_MAX_DISTANCE_MM,
+                             landmarks_rest: np.ndarray | None = None) -> CorrespondenceReference:
+    """The :class:`CorrespondenceReference` of one expression; arguments as :func:`correspondence_error`'s.
+
+    Raises:
+        InputError: a bad cap, NaN template positions, rest coordinates that do not match their scan.
+    """
+    if not np.isfinite(max_distance_mm) or max_distance_mm <= 0:
+        raise InputError("config", f"metrics: max_distance_mm must be a positive number (got {max_distance_mm})")
+    V_template = check_finite(V_template, "template")
+    rest_expr = check_rest_coords(rest_expr, len(scan_expr[0]), "ground truth of the registered expression")
+    rest_tpl = check_rest_coords(rest_tpl, len(scan_tpl[0]), "ground truth of the template expression")
+    m_tpl, usable_tpl = material_coordinates(V_template, scan_tpl, rest_tpl, max_distance_mm)
+    truth, present, hidden_mm = material_positions(m_tpl, scan_expr, rest_expr)
+    labels = None
+    if landmarks_rest is not None:
+        labels = np.full(len(V_template), UNLABELLED, dtype=np.int8)
+        labels[usable_tpl] = label_regions(m_tpl[usable_tpl], landmarks_rest)
+    return CorrespondenceReference(V_template, prepare_surface(*scan_expr), rest_expr, m_tpl, usable_tpl, truth,
+                                   present, hidden_mm, labels, float(max_distance_mm))
 
 
 def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
@@ -160,38 +215,38 @@ def correspondence_error(V_reg: np.ndarray, V_template: np.ndarray,
         positions, rest coordinates that do not match their scan, or no vertex
         usable in both expressions.
     """
-    if not np.isfinite(max_distance_mm) or max_distance_mm <= 0:
-        raise InputError("config", f"metrics: max_distance_mm must be a positive number (got {max_distance_mm})")
-    V_template = check_finite(V_template, "template")
-    V_reg = check_finite(V_reg, mesh_source)
-    check_vertex_prefix(len(V_reg), len(V_template), mesh_source)
-    rest_expr = check_rest_coords(rest_expr, len(scan_expr[0]), "ground truth of the registered expression")
-    rest_tpl = check_rest_coords(rest_tpl, len(scan_tpl[0]), "ground truth of the template expression")
+    reference = correspondence_reference(V_template, scan_expr, rest_expr, scan_tpl, rest_tpl,
+                                         max_distance_mm=max_distance_mm, landmarks_rest=landmarks_rest)
+    return score_correspondence(V_reg, reference, mesh_source)
 
-    m_reg, usable_reg = material_coordinates(V_reg[: len(V_template)], scan_expr, rest_expr, max_distance_mm)
-    m_tpl, usable_tpl = material_coordinates(V_template, scan_tpl, rest_tpl, max_distance_mm)
-    used = usable_reg & usable_tpl
+
+def score_correspondence(V_reg: np.ndarray, reference: CorrespondenceReference,
+                         mesh_source: str | Path = "registered mesh") -> dict:
+    """:func:`correspondence_error` of ``V_reg`` (n_reg, 3) float64 mm against a prepared ``reference``."""
+    r = reference
+    V_reg = check_finite(V_reg, mesh_source)
+    n_template = len(r.V_template)
+    check_vertex_prefix(len(V_reg), n_template, mesh_source)
+    m_reg, usable_reg = material_coordinates(V_reg[:n_template], r.scan_expr, r.rest_expr, r.max_distance_mm)
+    used = usable_reg & r.usable_tpl
     if not used.any():
-        raise InputError(mesh_source, f"no template vertex lies within {max_distance_mm:g} mm of both scans "
+        raise InputError(mesh_source, f"no template vertex lies within {r.max_distance_mm:g} mm of both scans "
                                       "(away from their boundaries): is the mesh in the scan's frame?")
-    error = np.where(used, np.linalg.norm(m_reg - m_tpl, axis=1), np.nan)
+    error = np.where(used, np.linalg.norm(m_reg - r.m_tpl, axis=1), np.nan)
     out = summarise(error, used)
-    out.update(n_template_vertices=len(V_template), max_distance_mm=float(max_distance_mm),
+    out.update(n_template_vertices=n_template, max_distance_mm=r.max_distance_mm,
                vertex_error_mm=error, vertex_used=used)
-    truth, present, hidden_mm = material_positions(m_tpl, scan_expr, rest_expr)
-    floor = np.where(usable_tpl, hidden_mm, np.nan)
+    floor = np.where(r.usable_tpl, r.hidden_mm, np.nan)
     out["floor"] = summarise(floor, used)
     out["vertex_floor_mm"] = floor
-    placed = usable_tpl & present
-    position = np.where(placed, np.linalg.norm(V_reg[: len(V_template)] - truth, axis=1), np.nan)
+    placed = r.usable_tpl & r.present
+    position = np.where(placed, np.linalg.norm(V_reg[:n_template] - r.truth, axis=1), np.nan)
     out["position"] = {**summarise(position, placed), "present_mm": PRESENT_MM}
     out["vertex_position_error_mm"] = position
-    if landmarks_rest is not None:
-        labels = np.full(len(V_template), UNLABELLED, dtype=np.int8)
-        labels[usable_tpl] = label_regions(m_tpl[usable_tpl], landmarks_rest)
-        regions = np.where(used, labels, UNLABELLED).astype(np.int8)
+    if r.labels is not None:
+        regions = np.where(used, r.labels, UNLABELLED).astype(np.int8)
         out.update(regions=region_statistics(error, regions), vertex_region=regions)
-        out["position"]["regions"] = region_statistics(position, np.where(placed, labels, UNLABELLED))
+        out["position"]["regions"] = region_statistics(position, np.where(placed, r.labels, UNLABELLED))
         out["floor"]["regions"] = region_statistics(floor, regions)
     return out
 

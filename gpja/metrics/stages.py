@@ -19,8 +19,8 @@ from gpja.camera import most_frontal_view
 from gpja.data.source import DataSource
 from gpja.io import read_image, read_npz, write_json, write_npz
 from gpja.mesh import read_obj
-from gpja.metrics.correspondence import (DEFAULT_MAX_DISTANCE_MM, TEMPLATE_EXPRESSION, correspondence_error,
-                                         read_landmarks_rest, read_rest_coords)
+from gpja.metrics.correspondence import (DEFAULT_MAX_DISTANCE_MM, TEMPLATE_EXPRESSION, correspondence_reference,
+                                         read_landmarks_rest, read_rest_coords, score_correspondence)
 from gpja.metrics.photometric import head_mask, l1_error_image, masked_psnr, render_with_texture
 from gpja.metrics.regions import REGIONS
 from gpja.results import read_stages, read_template_lighting
@@ -60,10 +60,10 @@ def score_stages(stages_dir: str | Path, template_dir: str | Path, source: DataS
     reference = reference / 255.0 if reference.max() > 1.0 else reference
     mask = head_mask(read_npz(targets_path)["coverage"][view:view + 1])[0]
     names, errors, l1_images, rows = [], [], [], []
+    truth = correspondence_reference(template.V, (data.scan.V, data.scan.F), rest_e, (scan_t.V, scan_t.F), rest_t,
+                                         max_distance_mm=max_distance_mm, landmarks_rest=landmarks)
     for name, mesh in read_stages(stages_dir):
-        c = correspondence_error(mesh.V, template.V, (data.scan.V, data.scan.F), rest_e, (scan_t.V, scan_t.F), rest_t,
-                                 max_distance_mm=max_distance_mm, mesh_source=f"{stages_dir} stage {name}",
-                                 landmarks_rest=landmarks)
+        c = score_correspondence(mesh.V, truth, mesh_source=f"{stages_dir} stage {name}")
         image = render_with_texture(mesh, texture, [data.cameras[view]], sh, render=render)[0]
         names.append(name)
         errors.append(c["vertex_error_mm"].astype(np.float32))

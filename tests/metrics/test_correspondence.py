@@ -7,8 +7,8 @@ import trimesh
 from gpja.errors import InputError
 from gpja.io import read_npz, write_npz
 from gpja.mesh import TexturedMesh, read_ply, write_obj, write_ply
-from gpja.metrics.correspondence import (correspondence_error, correspondence_error_files, material_coordinates,
-                                         material_positions)
+from gpja.metrics.correspondence import (correspondence_error, correspondence_error_files, correspondence_reference,
+                                         material_coordinates, material_positions, score_correspondence)
 from tests.tolerances import CORRESPONDENCE_EXACT_MM
 
 SUBJECT = "S01"
@@ -55,6 +55,35 @@ def deform(X, expression):
 def scans_of(V, F):
     """Scan (V, F) and rest coordinates of both expressions: the rest surface deformed."""
     return {e: ((deform(V, e), F), V) for e in AFFINE}
+
+
+def test_one_reference_scores_many_meshes_as_each_scored_alone():
+    """``gpja stages`` prepares the expression's side once and scores every stage against it: the same numbers,
+    bit for bit, as a whole correspondence_error per mesh, and the reference is not changed by a scoring."""
+    V, F = hemisphere()
+    scans = scans_of(V, F)
+    inner = np.flatnonzero(V[F].mean(axis=1)[:, 2] > 20.0)
+    P = points_on(V, F, inner)
+    V_template = deform(P, TEMPLATE_EXPRESSION)
+    landmarks = deform(points_on(V, F, inner[:68], seed=3), TEMPLATE_EXPRESSION)
+    reference = correspondence_reference(V_template, *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION],
+                                         landmarks_rest=landmarks)
+    frozen = reference.m_tpl.copy()
+    rng = np.random.default_rng(4)
+    for shift in (0.0, 0.3, 1.5):  # a registration's stages, each a little further off
+        V_reg = deform(P, EXPRESSION) + shift * rng.normal(size=P.shape)
+        alone = correspondence_error(V_reg, V_template, *scans[EXPRESSION], *scans[TEMPLATE_EXPRESSION],
+                                     landmarks_rest=landmarks)
+        shared = score_correspondence(V_reg, reference)
+        assert alone.keys() == shared.keys()
+        for key, value in alone.items():
+            if isinstance(value, np.ndarray):
+                np.testing.assert_array_equal(shared[key], value, err_msg=key)
+            else:
+                assert shared[key] == value, key
+    np.testing.assert_array_equal(reference.m_tpl, frozen)
+    with pytest.raises(InputError, match="fewer|vertices"):
+        score_correspondence(V_template[:10], reference)
 
 
 def test_exact_registration_has_zero_error():
