@@ -155,7 +155,135 @@ def test_obj_fast_parser_leaves_what_it_cannot_read_to_the_line_by_line_one(tmp_
     assert M._parse_numbers(rows, 2, 3, np.float64) is None
     assert M._parse_numbers([(1, "v 0 0 x")], 2, 3, np.float64) is None
     assert M._parse_triangles([(1, "f 1/1 2/2 3/3"), (2, "f 1/1 2/2 3/3 4/4")]) is None
+    assert M._parse_triangles([(1, "f 1/1 2/2 3/3"), (2, "f 1/1/1 2 3/3")]) is None  # corners unlike the first one
     np.testing.assert_array_equal(M._parse_numbers([(1, "v 1.5 -2 3e-3")], 2, 3, np.float64), [[1.5, -2, 3e-3]])
     (tmp_path / "r.obj").write_text("v 0 0 0 1\nv 1 0\nv 0 1 0\nf 1 2 3\n")
     with pytest.raises(InputError, match="malformed coordinates"):
         read_obj(tmp_path / "r.obj")
+
+
+# --- the vectorised OBJ reader (gpja.mesh._scan_obj) against the line-by-line parsers ----------------------------
+
+def _read_line_by_line(path, monkeypatch):
+    """read_obj with neither the vectorised scan nor the one-call parsers: every line split and converted alone."""
+    import gpja.mesh as M
+
+    with monkeypatch.context() as patch:
+        for name in ("_scan_obj", "_parse_numbers", "_parse_triangles"):
+            patch.setattr(M, name, lambda *args: None)
+        return read_obj(path, load_texture=False)
+
+
+def _assert_same(a, b):
+    for k in ("V", "F", "UV", "F_uv"):
+        x, y = getattr(a, k), getattr(b, k)
+        assert (x is None) == (y is None), k
+        if x is not None:
+            assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), k  # bit for bit
+
+
+def _fully_vectorised(path) -> bool:
+    import gpja.mesh as M
+
+    scan = M._scan_obj(path.read_bytes())
+    return scan is not None and scan[3] == ([], [], [])
+
+
+def test_obj_vectorised_reader_matches_line_by_line_on_a_random_mesh(tmp_path, monkeypatch):
+    rng = np.random.default_rng(7)
+    V = rng.normal(scale=60, size=(200, 3))
+    V[0], V[1] = [0, 1, -2], V[1] * 1e-9  # words without a dot, with an exponent
+    mesh = TexturedMesh(V, rng.integers(0, 200, (300, 3)), rng.random((250, 2)), rng.integers(0, 250, (300, 3)))
+    path = tmp_path / "m.obj"
+    write_obj(path, mesh, texture_name=None)
+    text = path.read_bytes()
+    for data in (text, text.replace(b"\n", b"\r\n"), text.rstrip(b"\n"), text.replace(b"\n", b"\r\n").rstrip()):
+        path.write_bytes(data)
+        fast = read_obj(path)
+        assert _fully_vectorised(path)
+        _assert_same(fast, _read_line_by_line(path, monkeypatch))
+        _assert_same(fast, mesh)
+
+
+def test_obj_vectorised_reader_skips_what_the_line_loop_skips(tmp_path, monkeypatch):
+    # comments, blank lines, vn / o / s / g / usemtl lines between and inside the blocks; v lines not contiguous
+    rng = np.random.default_rng(8)
+    num = lambda: "%.17g" % rng.normal(scale=30)
+    lines = ["# header", "mtllib m.mtl", "o head", f"v {num()} {num()} {num()}", "vn 0 0 1", "",
+             f"v {num()}  {num()}\t{num()} ", "# v 9 9 9", " v 9 9 9", "s off", f"vt {num()} {num()}",
+             f"v {num()} {num()} {num()}", "g part", f"vt {num()} {num()}", "usemtl skin", f"vt {num()} {num()}",
+             "f 1/1 2/2 3/3", "s 1", "", "f  3/3 2/2\t1/1", "vp 1 2", f"v {num()} {num()} {num()}", "f 1/1 3/3 4/2"]
+    path = tmp_path / "m.obj"
+    path.write_text("\n".join(lines) + "\n")
+    fast = read_obj(path, load_texture=False)
+    assert _fully_vectorised(path) and len(fast.V) == 4 and len(fast.UV) == 3 and len(fast.F) == 3
+    _assert_same(fast, _read_line_by_line(path, monkeypatch))
+
+
+@pytest.mark.parametrize("v, f, expect_F", [
+    ("v 0 0 0 1\nv 1 0 0\nv 1 1 0\nv 0 1 0\n", "f 1 2 3\nf 1 3 4\n", [[0, 1, 2], [0, 2, 3]]),  # one v with a w
+    ("v 0 0 0 1 0 0\nv 1 0 0 1 0 0\nv 1 1 0 0 1 0\nv 0 1 0 0 0 1\n", "f 1 2 3\n", [[0, 1, 2]]),  # vertex colours
+    ("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n", "f 1 2 3\nf 1 2 3 4\n", [[0, 1, 2], [0, 1, 2], [0, 2, 3]]),  # a quad
+])
+def test_obj_vectorised_reader_leaves_extra_columns_and_polygons_to_the_line_by_line_one(tmp_path, monkeypatch, v, f,
+                                                                                         expect_F):
+    path = tmp_path / "m.obj"
+    path.write_text(v + f)
+    mesh = read_obj(path)
+    assert not _fully_vectorised(path)
+    np.testing.assert_array_equal(mesh.V, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(mesh.F, expect_F)
+    _assert_same(mesh, _read_line_by_line(path, monkeypatch))
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("# c\nv 0 0 0\nv 1 0 0\nv 0 1 x\nf 1 2 3\n", "malformed coordinates near line 2"),  # the first v line, as before
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 0.5 -\nf 1/1 2/2 3/2\n", "malformed coordinates near line 4"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 x\n", "line 5: malformed face 'f 1 2 x'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/1\nf 1/1/1 2 3/1\n", "line 6: malformed face 'f 1/1/1 2 3/1'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/ 3/1\n", "line 5: malformed face 'f 1/1 2/ 3/1'"),
+])
+def test_obj_vectorised_reader_errors_name_the_line(tmp_path, monkeypatch, text, problem):
+    # a sign alone ("0.5 -") reads as 0 to np.fromstring's integer parser; corners unlike the first corner
+    # ("1/1/1 2 3/1", which the one-call parser used to read as 1/1 1/2 3/1) go to the line-by-line parser
+    path = tmp_path / "bad.obj"
+    for data in (text, text.replace("\n", "\r\n")):
+        path.write_text(data, newline="")
+        with pytest.raises(InputError, match=problem) as err:
+            read_obj(path)
+        assert str(path) in str(err.value)
+        with pytest.raises(InputError, match=problem):
+            _read_line_by_line(path, monkeypatch)
+
+
+def test_obj_decimals_are_read_bit_for_bit():
+    # write_obj's 17 digits, exact ties (2^53 + 1, 7e22), long words, exponents, words with no dot: the scan's one
+    # numpy call reads each as float() does
+    import gpja.mesh as M
+
+    rng = np.random.default_rng(9)
+    words = ["%.17g" % x for x in rng.normal(size=1500) * 10.0 ** rng.integers(-6, 6, 1500)]
+    words += ["9007199254740993.0", "-9007199254740995", "7e22", "0.1", "-0.0", "-0", "+2.5", "5.", "1.5E+3",
+              "123456789012345678901.5", "0.0000000000000000000000000000012", "1e-30", "4.9e-324"]
+    words += ["1"] * (-len(words) % 3)
+    data = "".join(f"v {a} {b} {c}\n" for a, b, c in zip(words[::3], words[1::3], words[2::3])).encode()
+    expect = np.array([float(w) for w in words]).view(np.int64)
+    np.testing.assert_array_equal(M._scan_obj(data)[0].ravel().view(np.int64), expect)
+
+
+def test_obj_text_path_reads_what_the_scan_leaves(tmp_path, monkeypatch):
+    # UTF-8 beyond ASCII is scanned unless it holds what str.split cuts at (a no-break space, a vertical tab); the
+    # text path reads those as before, and bytes that are not UTF-8 are not a text OBJ file
+    import gpja.mesh as M
+
+    path = tmp_path / "m.obj"
+    for comment, line, scanned in (("# façade", "v 1 0 0", True), ("#", "v 1 0\u00a00", False),
+                                   ("# \x0b", "v 1 0 0", False)):
+        path.write_bytes(f"{comment}\nv 0 0 0\n{line}\nv 0 1 0\nf 1 2 3\n".encode())
+        assert (M._scan_obj(path.read_bytes()) is not None) == scanned
+        _assert_same(read_obj(path), _read_line_by_line(path, monkeypatch))
+    path.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n# \xff\n")
+    with pytest.raises(InputError, match="not a text OBJ file"):
+        read_obj(path)
+    with pytest.raises(InputError, match="mesh file not found"):
+        read_obj(tmp_path / "missing.obj")
