@@ -43,7 +43,7 @@ if BASELINE_METHODS:
             log_path("{subject}", "{method}", "{expression}"),
         benchmark:
             bench_path("{subject}", "{method}", "{expression}")
-        # 1 thread, as every rule: a 2-thread job waits for two free cores, which 1-thread jobs seldom leave
+        # 1 thread, as every rule but the template: a 2-thread job waits for two free cores at once
         # (docs/benchmarks.md "Threads"); its outputs are the same on 1 and 2 threads
         threads: 1
         resources:

@@ -25,7 +25,7 @@ if SYNTH["enabled"]:
             log_path("{subject}", "synthesize_subject"),
         benchmark:
             bench_path("{subject}", "synthesize_subject")
-        # 1 thread, as every rule: a 2-thread job waits for two free cores, which 1-thread jobs seldom leave
+        # 1 thread, as every rule but the template: a 2-thread job waits for two free cores at once
         # (docs/benchmarks.md "Threads"); its outputs are the same on 1 and 2 threads
         threads: 1
         resources:
@@ -76,7 +76,7 @@ rule render_scan_targets:
         log_path("{subject}", "render_scan_targets", "{expression}"),
     benchmark:
         bench_path("{subject}", "render_scan_targets", "{expression}")
-    # 1 thread, as every rule: a 2-thread job waits for two free cores, which 1-thread jobs seldom leave
+    # 1 thread, as every rule but the template: a 2-thread job waits for two free cores at once
     # (docs/benchmarks.md "Threads"); its outputs are the same on 1 and 2 threads
     threads: 1
     resources:
