@@ -5,7 +5,10 @@ Prints JSON: wall time per registration (median over --repeats), the per-stage a
 per-stiffness-level breakdown, the solver's factorisation/CG counts, and the
 scan-to-mesh mean distance before and after.
 
-Usage: python benchmarks/bench_nicp.py [--repeats N] [--seed S]
+The sparse Cholesky backends (``NicpSettings.cholesky``, ``gpja.cholesky``) run side by side, alternating:
+each backend gets its own timings, and ``max_vertex_difference_mm`` says how far their results are apart.
+
+Usage: python benchmarks/bench_nicp.py [--repeats N] [--seed S] [--backends supernodal simplicial]
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ import open3d as o3d
 import trimesh
 
 from gpja.baselines.nicp import NicpSettings, nicp
+from gpja.cholesky import BACKENDS as CHOLESKY_BACKENDS
 from gpja.mesh import TexturedMesh
 from gpja.surface import prepare_surface
 
@@ -85,16 +89,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--backends", nargs="+", default=list(CHOLESKY_BACKENDS), choices=CHOLESKY_BACKENDS)
     args = ap.parse_args()
     case = make_case(args.seed)
-    settings = NicpSettings()
-    runs = []
+    runs_by_backend = {backend: [] for backend in args.backends}
     for _ in range(max(1, args.repeats)):
-        t = time.perf_counter()
-        mesh, log = nicp(case["template"], case["V_scan"], case["F_scan"], case["lm_template"], case["lm_scan"],
-                         settings, progress=lambda line: print(line, file=sys.stderr))
-        runs.append({"wall_s": time.perf_counter() - t, "log": log, "V": mesh.V})
-    first = runs[0]["log"]
+        for backend in args.backends:
+            t = time.perf_counter()
+            mesh, log = nicp(case["template"], case["V_scan"], case["F_scan"], case["lm_template"], case["lm_scan"],
+                             NicpSettings(cholesky=backend), progress=lambda line: print(line, file=sys.stderr))
+            runs_by_backend[backend].append({"wall_s": time.perf_counter() - t, "log": log, "V": mesh.V})
     out = {
         "benchmark": "nicp",
         "template_vertices": len(case["template"].V),
@@ -103,6 +107,20 @@ def main() -> None:
         "landmarks": len(case["lm_template"]),
         "cpu_count": os.cpu_count(),
         "load_average_1min": round(os.getloadavg()[0], 2),
+        "backends": {backend: summarise(runs, case) for backend, runs in runs_by_backend.items()},
+    }
+    if len(args.backends) == 2:
+        a, b = (runs_by_backend[k][0]["V"] for k in args.backends)
+        out["max_vertex_difference_mm"] = float(np.abs(a - b).max())
+        out["wall_ratio"] = round(out["backends"][args.backends[1]]["wall_s_median"]
+                                  / out["backends"][args.backends[0]]["wall_s_median"], 3)
+    print(json.dumps(out, indent=1))
+
+
+def summarise(runs: list[dict], case: dict) -> dict:
+    """One backend's runs: median times, per-step breakdown, solver counts, distances, determinism."""
+    first = runs[0]["log"]
+    return {
         "repeats": len(runs),
         "wall_s_median": round(statistics.median(r["wall_s"] for r in runs), 3),
         "wall_s_runs": [round(r["wall_s"], 3) for r in runs],
@@ -117,7 +135,6 @@ def main() -> None:
             "after": round(scan_to_mesh_mean(case["V_scan"], runs[0]["V"], case["template"].F), 4)},
         "deterministic": all(np.array_equal(r["V"], runs[0]["V"]) for r in runs),
     }
-    print(json.dumps(out, indent=1))
 
 
 if __name__ == "__main__":

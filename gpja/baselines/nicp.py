@@ -88,6 +88,7 @@ from gpja.baselines.alignment import find_correspondences, rigid_align
 from gpja.baselines.landmarks import (check_landmarks, check_landmarks_on_scan, read_landmarks,
                                       read_template_landmarks, template_landmark_points, transform_points)
 from gpja.baselines.nicp_solver import AffineProblem, AffineSolver, apply_affine, prepare_problem, solve_affine
+from gpja.cholesky import BACKENDS as CHOLESKY_BACKENDS
 from gpja.data.source import DataSource
 from gpja.data.units import check_units
 from gpja.errors import InputError
@@ -141,6 +142,9 @@ class NicpSettings:
         rigid_iterations: trimmed rigid ICP iterations after the landmark Procrustes.
         rigid_keep: fraction of the (valid) correspondences the rigid ICP keeps, closest first.
         similarity: let the pre-alignment scale the template (False: both are mm already).
+        cholesky: the sparse Cholesky backend of the 4n x 4n solves (``gpja.cholesky``): ``supernodal``
+            (cvxopt's CHOLMOD) or ``simplicial`` (cholespy, the baseline as first written); the same
+            registration to rounding, the factorisations several times faster.
     """
 
     steps: tuple[NicpStep, ...] = DEFAULT_STEPS
@@ -152,6 +156,7 @@ class NicpSettings:
     rigid_iterations: int = 10
     rigid_keep: float = 0.8
     similarity: bool = False
+    cholesky: str = "supernodal"
 
     #: ``NicpSettings.from_config(section, source)``: from ``baselines.nicp.settings`` (gpja.settings);
     #: ``steps`` is a list of ``[stiffness, landmark_weight, max_iterations]`` or of mappings with those keys.
@@ -164,6 +169,8 @@ class NicpSettings:
                 and self.convergence_mm >= 0 and self.rigid_iterations >= 0 and 0 < self.rigid_keep <= 1):
             raise ValueError("need gamma >= 0, max_distance_mm > 0, max_normal_angle_deg in (0, 180], "
                              "convergence_mm >= 0, rigid_iterations >= 0, rigid_keep in (0, 1]")
+        if self.cholesky not in CHOLESKY_BACKENDS:
+            raise ValueError(f"cholesky must be one of {', '.join(CHOLESKY_BACKENDS)}, got {self.cholesky!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -246,7 +253,7 @@ def nicp(template: TexturedMesh, V_scan: np.ndarray, F_scan: np.ndarray, templat
 
     prob = prepare_problem(cur, F, landmarks, P, scan_landmarks, settings.gamma)
     X = np.tile(np.eye(4, 3), (len(cur), 1))  # identity affine per vertex: x_i = v_i
-    solver = AffineSolver()
+    solver = AffineSolver(backend=settings.cholesky)
     corr = find_correspondences(target, cur, vertex_normals(cur, F), settings)
     steps_log = []
     for k, step in enumerate(settings.steps):

@@ -4,7 +4,7 @@ Every template vertex ``i`` carries an affine map ``X_i`` (4x3); for fixed
 correspondences the energy of :mod:`gpja.baselines.nicp` is quadratic in the
 stacked maps ``X (4n, 3)``, and its normal equations are a 4n x 4n sparse SPD
 system with three right-hand sides. :class:`AffineSolver` solves a sequence of
-such systems with one sparse Cholesky factor (cholespy / CHOLMOD), reused as a
+such systems with one sparse Cholesky factor (:mod:`gpja.cholesky`), reused as a
 conjugate-gradient preconditioner while the system changes little. Positions
 are normalised (centred, divided by their RMS radius) in :class:`AffineProblem`.
 """
@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from gpja.baselines.landmarks import TemplateLandmarks
+from gpja.cholesky import factorize
 from gpja.mesh import unique_edges
 from gpja.surface import vertex_areas
 
@@ -52,24 +53,6 @@ def landmark_matrix(Ph: np.ndarray, F: np.ndarray, landmarks: TemplateLandmarks,
     return sp.csr_matrix((vals, (rows, cols)), shape=(L, 4 * n))
 
 
-def factorize(H: sp.spmatrix):
-    """A sparse Cholesky factor (CHOLMOD via cholespy) of SPD ``H (N, N)``; ``.solve(b, x)`` fills ``x``."""
-    from cholespy import CholeskySolverD, MatrixType
-
-    H = sp.csr_matrix(H)
-    H.sum_duplicates()
-    H.sort_indices()
-    return CholeskySolverD(H.shape[0], H.indptr.astype(np.int32), H.indices.astype(np.int32),
-                           H.data.astype(np.float64), MatrixType.CSR)
-
-
-def solve_with(factor, B: np.ndarray) -> np.ndarray:
-    """``H^-1 B`` for ``B (N, k)`` float64 with a factor from :func:`factorize`."""
-    X = np.empty((B.shape[0], B.shape[1]))
-    factor.solve(np.ascontiguousarray(B, dtype=np.float64), X)
-    return X
-
-
 def block_pcg(H: sp.spmatrix, B: np.ndarray, X0: np.ndarray, factor, rtol: float, max_iterations: int
               ) -> tuple[np.ndarray, int, bool]:
     """Conjugate gradients on the k columns of ``H X = B`` at once, preconditioned by ``factor``.
@@ -87,7 +70,7 @@ def block_pcg(H: sp.spmatrix, B: np.ndarray, X0: np.ndarray, factor, rtol: float
     active = np.linalg.norm(R, axis=0) > target
     if not active.any():
         return X, 0, True
-    Z = solve_with(factor, R)
+    Z = factor.solve(R)
     P = Z.copy()
     rz = np.einsum("ij,ij->j", R, Z)
     for it in range(1, max_iterations + 1):
@@ -98,7 +81,7 @@ def block_pcg(H: sp.spmatrix, B: np.ndarray, X0: np.ndarray, factor, rtol: float
         active &= np.linalg.norm(R, axis=0) > target
         if not active.any():
             return X, it, True
-        Z = solve_with(factor, R)
+        Z = factor.solve(R)
         rz_new = np.einsum("ij,ij->j", R, Z)
         P = Z + P * np.where(active, rz_new / np.maximum(rz, 1e-300), 0.0)
         rz = rz_new
@@ -120,10 +103,12 @@ class AffineSolver:
         rtol: CG's relative residual tolerance.
         max_cg: CG iterations before falling back to a factorisation.
         max_stiffness_ratio: refactorise when the stiffness changed more than this since the factor.
+        backend: the factor's :mod:`gpja.cholesky` backend.
     """
 
-    def __init__(self, rtol: float = 1e-6, max_cg: int = 30, max_stiffness_ratio: float = 3.0):
-        self.rtol, self.max_cg, self.max_ratio = rtol, max_cg, max_stiffness_ratio
+    def __init__(self, rtol: float = 1e-6, max_cg: int = 30, max_stiffness_ratio: float = 3.0,
+                 backend: str = "supernodal"):
+        self.rtol, self.max_cg, self.max_ratio, self.backend = rtol, max_cg, max_stiffness_ratio, backend
         self.factor = None
         self.factor_stiffness = None
         self.stats = {"factorizations": 0, "cg_solves": 0, "cg_iterations": 0, "cg_failures": 0,
@@ -141,11 +126,11 @@ class AffineSolver:
             if ok:
                 return X
             self.stats["cg_failures"] += 1
-        self.factor = factorize(H)
+        self.factor = factorize(H, self.backend)
         self.factor_stiffness = stiffness
         self.stats["factorizations"] += 1
         self.stats["per_solve"].append("factorize")
-        return solve_with(self.factor, B)
+        return self.factor.solve(B)
 
 
 @dataclass

@@ -78,6 +78,9 @@ class FlowSettings:
             first written; ``match_round``).
         chroma: weight of the red-green chroma in the matched channel (0 = luminance alone, the stage as
             first written; :func:`to_match_u8`).
+        cholesky: the backend of the displacement solve's factor (:mod:`gpja.cholesky`): ``"supernodal"``
+            factors the 40K-vertex level's system about 6x faster than ``"simplicial"`` (cholespy, the
+            stage as first written); the displacements agree to rounding.
     """
 
     rounds: int = 3
@@ -86,6 +89,7 @@ class FlowSettings:
     spread_mm: float = 2.0
     still_mm: float = 0.0
     chroma: float = 0.0
+    cholesky: str = "supernodal"
 
 
 def to_grey_u8(image: np.ndarray) -> np.ndarray:
@@ -232,14 +236,18 @@ def smoothness_system(F: np.ndarray, n: int, smoothness: float) -> sp.csr_matrix
 
 
 def solve_displacement(V: np.ndarray, F: np.ndarray, target: np.ndarray, weight: np.ndarray, smoothness: float,
-                       spread_mm: float, system: sp.spmatrix | None = None) -> np.ndarray:
+                       spread_mm: float, system: sp.spmatrix | None = None, backend: str = "supernodal") -> np.ndarray:
     """The smooth displacement (n, 3) mm that takes weighted vertices towards their targets (module docstring).
 
-    The first pass's system is factorised (CHOLMOD); the re-weighted passes change only the weights of
-    the matches, so conjugate gradients preconditioned by that factor and started from the previous
-    pass's displacement solve them (``AffineSolver``; it refactorises when CG does not converge). At
-    100K vertices a factorisation costs ~3 s, a preconditioned iteration under 0.1 s, and a pass
-    takes 15-40 of them. ``system``: :func:`smoothness_system` of ``F``, when the caller has it.
+    The first pass's system is factorised; the re-weighted passes change only the weights of the matches,
+    so conjugate gradients preconditioned by that factor and started from the previous pass's
+    displacement solve them (``AffineSolver``; it refactorises when CG does not converge): a pass takes
+    15-40 preconditioned iterations. At 40K vertices the ``"supernodal"`` factor takes 0.44 s to build and
+    0.045 s to apply, the ``"simplicial"`` one 3.7 s and 0.019 s (``benchmarks/bench_cholesky.py``).
+    Factorising every pass with the supernodal factor instead would save another 3 s a registration,
+    but its exact solves differ from the preconditioned ones by 1e-5 mm, and that moved a whole
+    registration's correspondence median by 0.035 mm (docs/benchmarks.md, "Sparse Cholesky"). ``system``: :func:`smoothness_system` of ``F``, when the caller has it.
+    ``backend``: the factor's :mod:`gpja.cholesky` backend.
     """
     from gpja.baselines.nicp_solver import AffineSolver
 
@@ -249,7 +257,7 @@ def solve_displacement(V: np.ndarray, F: np.ndarray, target: np.ndarray, weight:
     # the small pull to no motion keeps vertices far from every match (the back of the head, a refined
     # mesh's socket) where they are; the smoothness alone would extrapolate the matches' motion linearly
     S = smoothness_system(F, n, smoothness) if system is None else system
-    solver = AffineSolver(rtol=SOLVE_RTOL, max_cg=SOLVE_MAX_CG)
+    solver = AffineSolver(rtol=SOLVE_RTOL, max_cg=SOLVE_MAX_CG, backend=backend)
     w = np.where(has, weight, 0.0)
     d = np.zeros_like(V)
     for _ in range(REWEIGHT_PASSES + 1):
@@ -325,7 +333,8 @@ def align_by_flow(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch
         target, weight = match_round(mesh, targets, texture, mask_texture, settings, render)
         matched = np.isfinite(target).all(1)
         # the whole displacement from the start is re-solved each round, so the matches' noise does not add up
-        d = solve_displacement(base.V, base.F, target, weight, settings.smoothness, settings.spread_mm, system)
+        d = solve_displacement(base.V, base.F, target, weight, settings.smoothness, settings.spread_mm, system,
+                               settings.cholesky)
         move = np.linalg.norm(base.V + d - mesh.V, axis=1)
         mesh = base.with_vertices(base.V + d)
         entry = {"matched_fraction": round(float(matched.mean()), 4), "median_move_mm": round(float(np.median(move)), 4),

@@ -64,6 +64,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from gpja.cholesky import BACKENDS as CHOLESKY_BACKENDS
 from gpja.errors import GpjaError
 from gpja.mesh import TexturedMesh
 from gpja.register.flow import FlowSettings
@@ -134,6 +135,9 @@ class Schedule:
         flow_chroma: weight of the red-green chroma beside the luminance in the image the flow matches (0 =
             luminance alone, the stage as first written; ``gpja.register.flow.to_match_u8``): the lips'
             outline is a chroma edge.
+        flow_cholesky: the sparse Cholesky backend of the flow stage's displacement solve (``gpja.cholesky``):
+            ``supernodal`` (CHOLMOD's supernodal factor through cvxopt) or ``simplicial`` (cholespy, the stage as
+            first written; slower to factor, the same displacements to rounding).
         color_gradient: "full" = the colour constraint's whole gradient moves the vertices (the paper);
             "tangential" = only its part along the surface (``gpja.register.hra.along_surface``, beyond the
             paper): on the template's nose the colour's normal push, undone by depth along the view rays,
@@ -179,6 +183,7 @@ class Schedule:
     flow_smoothness: float = FlowSettings.smoothness
     flow_still_mm: float = FlowSettings.still_mm
     flow_chroma: float = FlowSettings.chroma
+    flow_cholesky: str = FlowSettings.cholesky
     color_gradient: str = "full"
     average_iterations: int = 0
     views_per_iteration: tuple[int, ...] | None = None
@@ -235,6 +240,8 @@ class Schedule:
             raise ValueError(f"flow_still_mm must be >= 0, got {self.flow_still_mm}")
         if not float(self.flow_chroma) >= 0.0:
             raise ValueError(f"flow_chroma must be >= 0, got {self.flow_chroma}")
+        if self.flow_cholesky not in CHOLESKY_BACKENDS:
+            raise ValueError(f"flow_cholesky must be one of {', '.join(CHOLESKY_BACKENDS)}, got {self.flow_cholesky!r}")
         if self.color_gradient not in COLOR_GRADIENTS:
             raise ValueError(f"color_gradient must be one of {', '.join(COLOR_GRADIENTS)}, got {self.color_gradient!r}")
         if not 0.0 <= float(self.hold_tangential) < 1.0:
@@ -470,7 +477,8 @@ def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedul
     from gpja.register.flow import align_by_flow
 
     settings = FlowSettings(rounds=int(schedule.flow_rounds), smoothness=float(schedule.flow_smoothness),
-                            still_mm=float(schedule.flow_still_mm), chroma=float(schedule.flow_chroma))
+                            still_mm=float(schedule.flow_still_mm), chroma=float(schedule.flow_chroma),
+                            cholesky=schedule.flow_cholesky)
     mesh, entry = align_by_flow(mesh, targets, texture, mask_texture, settings, render=render, progress=progress)
     log.levels.append({**entry, "stage": name})
     if on_stage is not None:

@@ -140,11 +140,12 @@ def test_one_wrong_match_does_not_pull_its_neighbourhood():
 SOLVE_AGREEMENT_MM = 1e-4
 
 
-def test_reweighted_solves_match_a_factorisation_of_each_system(monkeypatch):
+@pytest.mark.parametrize("backend", ["supernodal", "simplicial"])
+def test_reweighted_solves_match_a_factorisation_of_each_system(monkeypatch, backend):
     import scipy.sparse as sp
 
     from gpja.baselines import nicp_solver
-    from gpja.baselines.nicp_solver import factorize, solve_with
+    from gpja.cholesky import factorize
     from gpja.register.flow import REWEIGHT_PASSES, smoothness_system
     from tests.render.scenes import sphere
 
@@ -155,16 +156,18 @@ def test_reweighted_solves_match_a_factorisation_of_each_system(monkeypatch):
     target[V[:, 2] < -10.0] = np.nan
     weight = rng.integers(1, 4, len(V)).astype(float)
     factorizations = []
-    monkeypatch.setattr(nicp_solver, "factorize", lambda H: factorizations.append(H.shape) or factorize(H))
-    d = solve_displacement(V, F, target, weight, smoothness=30.0, spread_mm=2.0)
-    assert len(factorizations) == 1  # the re-weighted passes are preconditioned by the first pass's factor
+    monkeypatch.setattr(nicp_solver, "factorize",
+                        lambda H, b: factorizations.append((H.shape, b)) or factorize(H, b))
+    d = solve_displacement(V, F, target, weight, smoothness=30.0, spread_mm=2.0, backend=backend)
+    # the re-weighted passes are preconditioned by the first pass's factor, of the backend asked for
+    assert factorizations == [((len(V), len(V)), backend)]
     # the same passes, each system factorised anew
     has = np.isfinite(target).all(1)
     residual = np.where(has[:, None], target - V, 0.0)
     S = smoothness_system(F, len(V), 30.0)
     w = np.where(has, weight, 0.0)
     for _ in range(REWEIGHT_PASSES + 1):
-        direct = solve_with(factorize(S + sp.diags(w)), w[:, None] * residual)
+        direct = factorize(S + sp.diags(w), "simplicial").solve(w[:, None] * residual)
         w = np.where(has, weight / (1.0 + (np.linalg.norm(direct - residual, axis=1) / 2.0) ** 2), 0.0)
     np.testing.assert_allclose(d, direct, atol=SOLVE_AGREEMENT_MM)
 
