@@ -17,9 +17,12 @@ tools produce.
 """
 from __future__ import annotations
 
+import copy
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Callable, Iterator, TypeVar
 
 import numpy as np
 
@@ -366,18 +369,63 @@ def _resolve_index(idx: np.ndarray, count: int) -> np.ndarray:
     return np.where(idx < 0, count + idx, idx - 1) if (idx < 0).any() else idx - 1
 
 
+#: what :func:`reading_once` remembers: (kind, resolved path, size, modification time, options) -> the first
+#: read's result; None outside it, where every read parses its file
+_READ_ONCE: dict | None = None
+_Read = TypeVar("_Read")
+
+
+@contextmanager
+def reading_once() -> Iterator[None]:
+    """Within the block, :func:`read_obj` and :func:`read_ply` parse each file once.
+
+    A later read of the same file (the same resolved path, size and modification time, the same options)
+    returns a deep copy of the first read's result, so every caller gets arrays of its own, exactly as
+    from the file. A metrics job reads its mesh four times and the scans twice each (one family after
+    another, each from the paths: ``gpja.metrics.evaluate``). Nested blocks share the outermost memo,
+    which is dropped when it ends.
+    """
+    global _READ_ONCE
+    outer = _READ_ONCE
+    if outer is None:
+        _READ_ONCE = {}
+    try:
+        yield
+    finally:
+        _READ_ONCE = outer
+
+
+def _remembered(kind: str, path: Path, options: tuple, read: Callable[[], _Read]) -> _Read:
+    """``read()``, or inside :func:`reading_once` a copy of its first result for this file."""
+    if _READ_ONCE is None:
+        return read()
+    try:
+        stat = path.stat()
+    except OSError:
+        return read()  # missing or unreadable: the reader says so
+    key = (kind, str(path.resolve()), stat.st_size, stat.st_mtime_ns, options)
+    if key not in _READ_ONCE:
+        _READ_ONCE[key] = read()
+    return copy.deepcopy(_READ_ONCE[key])
+
+
 def read_obj(path: str | Path, load_texture: bool = True) -> TexturedMesh:
     """Read an OBJ (triangles or polygons; ``v``, ``vt``, ``f``, ``mtllib``/``map_Kd``).
 
     Lines are recognised by their first characters exactly (``v ``, ``vt ``, ``f ``, ``mtllib ``); ``vn``, comments,
     groups and the rest are skipped. :func:`_scan_obj` reads the file's bytes; the text path below is what it
-    vectorises, and reads what it leaves.
+    vectorises, and reads what it leaves. Inside :func:`reading_once` a file is parsed once.
 
     Raises:
         InputError: missing file, malformed lines, out-of-range indices, NaN
         coordinates, empty mesh, or a referenced texture that cannot be read.
     """
     path = Path(path)
+    return _remembered("obj", path, (load_texture,), lambda: _parse_obj_file(path, load_texture))
+
+
+def _parse_obj_file(path: Path, load_texture: bool) -> TexturedMesh:
+    """:func:`read_obj`'s reading, every time it is called."""
     if not path.is_file():
         raise InputError(path, "mesh file not found")
     data = path.read_bytes()
@@ -461,10 +509,17 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         F: (m, 3) int64 faces.
     Raises:
         InputError: missing, unreadable, empty, or with NaN / out-of-range values.
+
+    Inside :func:`reading_once` a file is parsed once.
     """
+    path = Path(path)
+    return _remembered("ply", path, (), lambda: _parse_ply_file(path))
+
+
+def _parse_ply_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`read_ply`'s reading, every time it is called."""
     import trimesh
 
-    path = Path(path)
     if not path.is_file():
         raise InputError(path, "scan file not found")
     if path.stat().st_size == 0:

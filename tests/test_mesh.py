@@ -287,3 +287,37 @@ def test_obj_text_path_reads_what_the_scan_leaves(tmp_path, monkeypatch):
         read_obj(path)
     with pytest.raises(InputError, match="mesh file not found"):
         read_obj(tmp_path / "missing.obj")
+
+
+def test_reading_once_parses_each_file_once_and_hands_out_copies(tmp_path, monkeypatch):
+    import gpja.mesh as M
+
+    V, F = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]), np.array([[0, 1, 2], [0, 3, 1]])
+    obj, ply = tmp_path / "m.obj", tmp_path / "s.ply"
+    write_obj(obj, TexturedMesh(V, F), texture_name=None)
+    write_ply(ply, V, F)
+    parsed = []
+    for name in ("_parse_obj_file", "_parse_ply_file"):
+        real = getattr(M, name)
+        monkeypatch.setattr(M, name, lambda *a, real=real, name=name: parsed.append(name) or real(*a))
+    with M.reading_once():
+        first = read_obj(obj, load_texture=False)
+        first.V[0] = 99.0  # a caller changing its copy changes no one else's
+        second = read_obj(obj, load_texture=False)
+        with M.reading_once():  # a nested block shares the memo
+            scans = [read_ply(ply), read_ply(ply)]
+        assert read_obj(obj, load_texture=True) is not None  # other options: another read
+    assert parsed == ["_parse_obj_file", "_parse_ply_file", "_parse_obj_file"]
+    np.testing.assert_array_equal(second.V, V)
+    np.testing.assert_array_equal(second.F, F)
+    assert scans[0][0] is not scans[1][0]
+    np.testing.assert_array_equal(scans[1][0], V)
+    # outside a block, and for a file rewritten inside one, the file is parsed again
+    read_obj(obj, load_texture=False)
+    with M.reading_once():
+        read_obj(obj, load_texture=False)
+        write_obj(obj, TexturedMesh(V * 2.0, F), texture_name=None)
+        np.testing.assert_array_equal(read_obj(obj, load_texture=False).V, V * 2.0)
+        with pytest.raises(InputError, match="not found"):
+            read_obj(tmp_path / "missing.obj")
+    assert parsed[3:] == ["_parse_obj_file"] * 4  # outside; the new block's first; rewritten; missing (its error)
