@@ -35,6 +35,7 @@ Typical loop::
 from __future__ import annotations
 
 import math
+from collections import defaultdict
 from collections.abc import Iterable
 
 import numpy as np
@@ -167,7 +168,7 @@ def to_differential(x: torch.Tensor, M: sp.spmatrix | torch.Tensor) -> torch.Ten
     return Mt @ x
 
 
-class UniformAdam(torch.optim.Optimizer):
+class UniformAdam:
     """Adam with one scalar second-moment normaliser per parameter tensor.
 
     For a parameter ``p`` with gradient ``g`` at step ``t``::
@@ -181,12 +182,20 @@ class UniformAdam(torch.optim.Optimizer):
     (the LargeSteps paper's variant). The first step has max-abs entry ``lr``
     (up to ``eps``).
 
+    It has a ``torch.optim.Optimizer``'s interface (``param_groups``, ``state``, ``zero_grad``, ``step``)
+    without being one: that class's constructor imports ``torch._dynamo`` on its first use, 3 s of every
+    registration process (measured with cProfile on ``gpja register``), and nothing else of it is needed.
+
     Args:
         params: iterable of tensors or parameter groups (typically ``[par.u]``).
         lr: learning rate, in the parameter's unit (mm for ``u``): the largest
             entry of a step is at most about ``lr``.
         betas: (beta1, beta2) moment decay rates in [0, 1).
         eps: added to the normaliser, in the gradient's unit.
+    Attributes:
+        param_groups: list of dicts, each with ``params`` (tensors) and its ``lr``, ``betas``, ``eps``;
+            change ``lr`` there between steps.
+        state: per parameter tensor, ``step`` and the moments ``exp_avg``, ``exp_avg_sq``.
     """
 
     def __init__(self, params: Iterable, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999),
@@ -197,7 +206,28 @@ class UniformAdam(torch.optim.Optimizer):
             raise InputError("UniformAdam", f"betas must lie in [0, 1), got {betas}")
         if not eps >= 0.0:
             raise InputError("UniformAdam", f"eps must be >= 0, got {eps}")
-        super().__init__(params, dict(lr=lr, betas=betas, eps=eps))
+        self.defaults = dict(lr=lr, betas=betas, eps=eps)
+        params = list(params)
+        groups = params if params and isinstance(params[0], dict) else [{"params": params}]
+        self.param_groups = [{**self.defaults, **group, "params": list(group["params"])} for group in groups]
+        if not any(group["params"] for group in self.param_groups):
+            raise InputError("UniformAdam", "got an empty parameter list")
+        for group in self.param_groups:
+            if not all(isinstance(p, torch.Tensor) for p in group["params"]):
+                raise InputError("UniformAdam", "parameters must be tensors")
+        self.state: dict[torch.Tensor, dict] = defaultdict(dict)
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        """Clear every parameter's gradient (to None, as ``torch.optim.Optimizer.zero_grad`` does by default)."""
+        for group in self.param_groups:
+            for p in group["params"]:
+                if p.grad is None:
+                    continue
+                if set_to_none:
+                    p.grad = None
+                else:
+                    p.grad.detach_()
+                    p.grad.zero_()
 
     @torch.no_grad()
     def step(self, closure=None):

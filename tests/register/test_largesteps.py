@@ -154,6 +154,41 @@ def test_bad_optimizer_args():
         UniformAdam([p], lr=-1.0)
     with pytest.raises(InputError, match="betas"):
         UniformAdam([p], betas=(1.0, 0.9))
+    with pytest.raises(InputError, match="empty"):
+        UniformAdam([])
+    with pytest.raises(InputError, match="tensors"):
+        UniformAdam([np.zeros(3)])
+
+
+def test_uniform_adam_groups_zero_grad_and_a_changed_learning_rate():
+    p, q = torch.zeros(3, requires_grad=True), torch.zeros(3, requires_grad=True)
+    opt = UniformAdam([{"params": [p]}, {"params": [q], "lr": 0.5}], lr=0.1)
+    assert [g["lr"] for g in opt.param_groups] == [0.1, 0.5]
+    p.grad, q.grad = torch.ones(3), torch.ones(3)
+    opt.step()
+    torch.testing.assert_close(-p.detach(), torch.full((3,), 0.1), rtol=ADAM_FIRST_STEP_REL, atol=0)
+    torch.testing.assert_close(-q.detach(), torch.full((3,), 0.5), rtol=ADAM_FIRST_STEP_REL, atol=0)
+    assert opt.state[p]["step"] == 1
+    opt.zero_grad()
+    assert p.grad is None and q.grad is None
+    opt.param_groups[0]["lr"] = 0.0  # what the schedule's decay does between steps
+    p.grad = torch.ones(3)
+    before = p.detach().clone()
+    opt.step()
+    torch.testing.assert_close(p.detach(), before)
+    opt.zero_grad(set_to_none=False)
+    torch.testing.assert_close(p.grad, torch.zeros(3))
+
+
+def test_uniform_adam_does_not_import_torch_dynamo():
+    """torch.optim.Optimizer's constructor imports torch._dynamo (3 s a process); UniformAdam is not one."""
+    import subprocess
+    import sys
+
+    code = ("import sys, torch; from gpja.register.largesteps import UniformAdam; "
+            "UniformAdam([torch.zeros(2, requires_grad=True)]).step(); print('torch._dynamo' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
 
 
 # ---------------------------------------------------------------- smoothing behaviour
