@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from gpja.errors import InputError
-from gpja.mesh import TexturedMesh
+from gpja.mesh import TexturedMesh, unique_edges
 from gpja.register.bust import Bust
 
 #: Scan extents (robust, mm) accepted as a head in millimetres.
@@ -105,6 +105,6 @@ def _surface_samples(mesh: TexturedMesh, spacing_mm: float = 2.0) -> np.ndarray:
     V, F = mesh.V, mesh.F
     tri = V[F]
     pts = [V, tri.mean(1)]
-    e = np.unique(np.sort(F[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    e, _ = unique_edges(F)
     pts.append(0.5 * (V[e[:, 0]] + V[e[:, 1]]))
     return np.concatenate(pts)

@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from gpja.errors import InputError
+from gpja.mesh import unique_edges
 
 #: A triangle with twice its area below this fraction of its longest edge squared is skipped.
 DEGENERATE_REL = 1e-12
@@ -121,8 +122,7 @@ def uniform_laplacian(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
     """
     V, F = _check_mesh(V, F, "uniform_laplacian")
     n = len(V)
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e, _ = unique_edges(F)  # (low, high) pairs in lexicographic order
     e = e[e[:, 0] != e[:, 1]]
     A = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
     A = A.tocsr()
