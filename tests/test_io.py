@@ -80,3 +80,19 @@ def test_path_patterns_fill_subject_and_expression_and_refuse_other_fields():
     assert fill_path_pattern("fixed.obj", "S01", "1_neutral") == Path("fixed.obj")
     with pytest.raises(InputError, match="only {subject} and {expression}"):
         fill_path_pattern("a/{subj}.obj", "S01", "1_neutral")
+
+
+def test_npz_round_trip_keeps_every_dtype_and_shape_and_is_compressed(tmp_path):
+    rng = np.random.default_rng(1)
+    arrays = {"V": rng.random((50, 3)).astype(np.float32), "F": rng.integers(0, 50, (80, 3)).astype(np.int32),
+              "flags": rng.random(7) < 0.5, "names": np.array(["1_neutral", "2_smile"]), "empty": np.zeros((0, 3)),
+              "scalar": np.float64(2.5), "zeros": np.zeros(100_000)}
+    write_npz(tmp_path / "r.npz", **arrays)
+    back = read_npz(tmp_path / "r.npz")
+    assert list(back) == list(arrays)
+    for key, value in arrays.items():
+        assert back[key].dtype == np.asarray(value).dtype and back[key].shape == np.shape(value)
+        np.testing.assert_array_equal(back[key], value)
+    with np.load(tmp_path / "r.npz") as plain:  # numpy's own reader
+        np.testing.assert_array_equal(plain["F"], arrays["F"])
+    assert (tmp_path / "r.npz").stat().st_size < 100_000  # 800 KB of zeros deflate to almost nothing
