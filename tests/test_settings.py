@@ -52,7 +52,7 @@ NON_DEFAULT = {
     "baselines.nicp.settings": {"steps": [[0.5, 0.25, 3]], "gamma": 2.0, "max_distance_mm": 4.0,
                                 "max_normal_angle_deg": 45.0, "reject_boundary": False, "convergence_mm": 0.5,
                                 "rigid_iterations": 3, "rigid_keep": 0.5, "similarity": True,
-                                "cholesky": "simplicial"},
+                                "cholesky": "supernodal"},
     "metrics": {"samples": 1234, "seed": 9, "thresholds_mm": [0.25], "coverage": "distance", "max_distance_mm": 3.0,
                 "correspondence_max_distance_mm": 1.5, "photometric": False},
     "figures": {"view": "3", "heatmap_max_mm": 2.0, "render_size": 128},

@@ -142,9 +142,10 @@ class NicpSettings:
         rigid_iterations: trimmed rigid ICP iterations after the landmark Procrustes.
         rigid_keep: fraction of the (valid) correspondences the rigid ICP keeps, closest first.
         similarity: let the pre-alignment scale the template (False: both are mm already).
-        cholesky: the sparse Cholesky backend of the 4n x 4n solves (``gpja.cholesky``): ``supernodal``
-            (cvxopt's CHOLMOD) or ``simplicial`` (cholespy, the baseline as first written); the same
-            registration to rounding, the factorisations several times faster.
+        cholesky: the sparse Cholesky backend of the 4n x 4n solves (``gpja.cholesky``): ``simplicial``
+            (cholespy) or ``supernodal`` (cvxopt's CHOLMOD; the same registration to rounding). The
+            supernodal factor is built 8x faster but applied 2.7x slower, and a default-run NICP applies it
+            ~190 times for 2 factorisations: 23.8-27.9 s against 22.9-24.0 s (docs/benchmarks.md).
     """
 
     steps: tuple[NicpStep, ...] = DEFAULT_STEPS
@@ -156,7 +157,7 @@ class NicpSettings:
     rigid_iterations: int = 10
     rigid_keep: float = 0.8
     similarity: bool = False
-    cholesky: str = "supernodal"
+    cholesky: str = "simplicial"
 
     #: ``NicpSettings.from_config(section, source)``: from ``baselines.nicp.settings`` (gpja.settings);
     #: ``steps`` is a list of ``[stiffness, landmark_weight, max_iterations]`` or of mappings with those keys.
