@@ -136,8 +136,8 @@ class Schedule:
             luminance alone, the stage as first written; ``gpja.register.flow.to_match_u8``): the lips'
             outline is a chroma edge.
         flow_cholesky: the sparse Cholesky backend of the flow stage's displacement solve (``gpja.cholesky``):
-            ``supernodal`` (CHOLMOD's supernodal factor through cvxopt) or ``simplicial`` (cholespy, the stage as
-            first written; slower to factor, the same displacements to rounding).
+            ``simplicial`` (cholespy, the stage as first written) or ``supernodal`` (CHOLMOD's supernodal factor
+            through cvxopt: faster to factor, the same displacements to rounding; ``FlowSettings.cholesky``).
         color_gradient: "full" = the colour constraint's whole gradient moves the vertices (the paper);
             "tangential" = only its part along the surface (``gpja.register.hra.along_surface``, beyond the
             paper): on the template's nose the colour's normal push, undone by depth along the view rays,
