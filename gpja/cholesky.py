@@ -25,6 +25,9 @@ from gpja.errors import InputError
 
 #: the backends :func:`factorize` accepts
 BACKENDS = ("supernodal", "simplicial")
+#: every caller's default (the flow stage's and NICP's settings, ``nicp_solver.AffineSolver``): fast solves, and the
+#: factor every registration before the supernodal one was computed with (docs/experiments.md)
+DEFAULT_BACKEND = "simplicial"
 
 
 class CholeskyFactor:
@@ -41,7 +44,7 @@ class CholeskyFactor:
     def solve(self, B: np.ndarray) -> np.ndarray:
         """``H^-1 B`` for ``B (N,)`` or ``(N, k)``, any float dtype; float64 of ``B``'s shape."""
         B = np.asarray(B, dtype=np.float64)
-        if B.shape[0] != self.n or B.ndim not in (1, 2):
+        if B.ndim not in (1, 2) or B.shape[0] != self.n:
             raise InputError("CholeskyFactor.solve", f"B must have shape ({self.n},) or ({self.n}, k), got {B.shape}")
         columns = B.reshape(self.n, -1)
         if self.backend == "supernodal":
@@ -57,12 +60,13 @@ class CholeskyFactor:
         return X.reshape(B.shape)
 
 
-def factorize(H: sp.spmatrix, backend: str = "supernodal") -> CholeskyFactor:
+def factorize(H: sp.spmatrix, backend: str = DEFAULT_BACKEND) -> CholeskyFactor:
     """The Cholesky factor of SPD ``H (N, N)`` (scipy sparse, both triangles stored).
 
     Args:
         H: the system; its duplicates are summed.
-        backend: ``"supernodal"`` (fast factorisation) or ``"simplicial"`` (fast solves); module docstring.
+        backend: ``"simplicial"`` (fast solves; :data:`DEFAULT_BACKEND`) or ``"supernodal"`` (fast
+            factorisation); module docstring.
     Raises:
         InputError: an unknown backend, a non-square ``H``, or ``H`` not positive definite.
     """

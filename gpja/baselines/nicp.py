@@ -89,6 +89,7 @@ from gpja.baselines.landmarks import (check_landmarks, check_landmarks_on_scan, 
                                       read_template_landmarks, template_landmark_points, transform_points)
 from gpja.baselines.nicp_solver import AffineProblem, AffineSolver, apply_affine, prepare_problem, solve_affine
 from gpja.cholesky import BACKENDS as CHOLESKY_BACKENDS
+from gpja.cholesky import DEFAULT_BACKEND as DEFAULT_CHOLESKY
 from gpja.data.source import DataSource
 from gpja.data.units import check_units
 from gpja.errors import InputError
@@ -157,7 +158,7 @@ class NicpSettings:
     rigid_iterations: int = 10
     rigid_keep: float = 0.8
     similarity: bool = False
-    cholesky: str = "simplicial"
+    cholesky: str = DEFAULT_CHOLESKY
 
     #: ``NicpSettings.from_config(section, source)``: from ``baselines.nicp.settings`` (gpja.settings);
     #: ``steps`` is a list of ``[stiffness, landmark_weight, max_iterations]`` or of mappings with those keys.

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from gpja.baselines.landmarks import TemplateLandmarks
-from gpja.cholesky import factorize
+from gpja.cholesky import DEFAULT_BACKEND, factorize
 from gpja.mesh import unique_edges
 from gpja.surface import vertex_areas
 
@@ -107,7 +107,7 @@ class AffineSolver:
     """
 
     def __init__(self, rtol: float = 1e-6, max_cg: int = 30, max_stiffness_ratio: float = 3.0,
-                 backend: str = "supernodal"):
+                 backend: str = DEFAULT_BACKEND):
         self.rtol, self.max_cg, self.max_ratio, self.backend = rtol, max_cg, max_stiffness_ratio, backend
         self.factor = None
         self.factor_stiffness = None

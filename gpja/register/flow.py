@@ -43,6 +43,7 @@ import scipy.sparse as sp
 import torch
 
 from gpja.camera import Camera
+from gpja.cholesky import DEFAULT_BACKEND
 from gpja.mesh import TexturedMesh
 from gpja.register.hra import ExpressionTargets
 
@@ -91,7 +92,7 @@ class FlowSettings:
     spread_mm: float = 2.0
     still_mm: float = 0.0
     chroma: float = 0.0
-    cholesky: str = "simplicial"
+    cholesky: str = DEFAULT_BACKEND
 
 
 def to_grey_u8(image: np.ndarray) -> np.ndarray:
@@ -238,7 +239,7 @@ def smoothness_system(F: np.ndarray, n: int, smoothness: float) -> sp.csr_matrix
 
 
 def solve_displacement(V: np.ndarray, F: np.ndarray, target: np.ndarray, weight: np.ndarray, smoothness: float,
-                       spread_mm: float, system: sp.spmatrix | None = None, backend: str = "supernodal") -> np.ndarray:
+                       spread_mm: float, system: sp.spmatrix | None = None, backend: str = DEFAULT_BACKEND) -> np.ndarray:
     """The smooth displacement (n, 3) mm that takes weighted vertices towards their targets (module docstring).
 
     The first pass's system is factorised; the re-weighted passes change only the weights of the matches,
@@ -248,8 +249,10 @@ def solve_displacement(V: np.ndarray, F: np.ndarray, target: np.ndarray, weight:
     0.045 s to apply, the ``"simplicial"`` one 3.7 s and 0.019 s (``benchmarks/bench_cholesky.py``).
     Factorising every pass with the supernodal factor instead would save another 3 s a registration,
     but its exact solves differ from the preconditioned ones by 1e-5 mm, and that moved a whole
-    registration's correspondence median by 0.035 mm (docs/benchmarks.md, "Sparse Cholesky"). ``system``: :func:`smoothness_system` of ``F``, when the caller has it.
-    ``backend``: the factor's :mod:`gpja.cholesky` backend.
+    registration's correspondence median by 0.035 mm (docs/benchmarks.md, "Sparse Cholesky").
+
+    ``system``: :func:`smoothness_system` of ``F``, when the caller has it. ``backend``: the factor's
+    :mod:`gpja.cholesky` backend (``FlowSettings.cholesky``).
     """
     from gpja.baselines.nicp_solver import AffineSolver
 
