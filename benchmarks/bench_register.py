@@ -156,7 +156,7 @@ def main() -> None:
         return
     start = time.perf_counter()
     mesh, log = register(template, mask, targets, schedule, Switches(), progress=lambda m: print(m, file=sys.stderr),
-                         orientation=orientation)
+                         orientation=orientation, scan=(data.scan.V, data.scan.F))
     seconds = time.perf_counter() - start
     levels = [level_entry(lv) for lv in log.levels]
     print(json.dumps({
@@ -219,7 +219,8 @@ def compare_schedules(args, start_mesh, mask, targets, schedules: dict, data, or
 
     def case(schedule):
         return lambda: register(start_mesh, mask, targets, schedule, Switches(),
-                                progress=lambda m: print(m, file=sys.stderr), orientation=orientation)
+                                progress=lambda m: print(m, file=sys.stderr), orientation=orientation,
+                                scan=(data.scan.V, data.scan.F))
 
     runs, medians = time_alternately({name: case(s) for name, s in schedules.items()}, args.repeats, data,
                                      accuracy_scorer(args, Path(args.results) / args.subject / "template"))
@@ -246,7 +247,8 @@ def compare_starts(args, template, mask, targets, schedule, data) -> None:
             with tempfile.TemporaryDirectory() as tmp:
                 return register(mesh0, mask, targets, schedule, Switches(),
                                 on_stage=stage_writer(tmp) if save_stages else None,
-                                progress=lambda m: print(m, file=sys.stderr), orientation=template.V)
+                                progress=lambda m: print(m, file=sys.stderr), orientation=template.V,
+                                scan=(data.scan.V, data.scan.F))
         return run
 
     runs, medians = time_alternately({"template": case(template, False), "tree": case(parent, True)}, args.repeats,

@@ -144,7 +144,7 @@ def cmd_register(args: argparse.Namespace) -> None:
 
         on_stage = stage_writer(args.stages_dir)
     mesh, log = register(start_mesh, mask, targets, schedule, switches, progress=lambda m: print(m, flush=True),
-                         render=render, on_stage=on_stage, orientation=template.V)
+                         render=render, on_stage=on_stage, orientation=template.V, scan=(data.scan.V, data.scan.F))
     texture_ref = os.path.relpath(Path(args.template_dir) / "texture.png", Path(args.output).parent)
     summary = {"subject": args.subject, "expression": args.expression, "switches": switches.__dict__,
                "start": str(args.start_from) if args.start_from else "template",

@@ -110,6 +110,8 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja-no_hold", "GPJA w/o hold", "ablation", overrides=(("hold_tangential", 0.0),)),
     # GPJA without the last stage that smooths the registration's folds out along its surface: what it buys
     Method("gpja-no_untangle", "GPJA w/o untangling", "ablation", overrides=(("untangle_iterations", 0),)),
+    # GPJA without the last step along the normals onto the scan: what it buys
+    Method("gpja-no_snap", "GPJA w/o snap", "ablation", overrides=(("snap_mm", 0.0),)),
     # the paper's method as published (no warm-up, one Adam, from the template): what each departure buys
     Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),

@@ -266,7 +266,8 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         expected += [f"flow{k + 1}"] * (0 < k < flow_levels) + [f"level{k + 1}"]
     # snakemake merges ci.yaml's sections over the default's: the untangling is the default's unless ci.yaml sets it
     default_gpja = yaml.safe_load((ROOT / "config/config.yaml").read_text())["registration"]["gpja"]
-    expected += ["untangle"] * ({**default_gpja, **gpja_cfg}.get("untangle_iterations", 0) > 0)
+    merged = {**default_gpja, **gpja_cfg}
+    expected += ["untangle"] * (merged.get("untangle_iterations", 0) > 0) + ["snap"] * (merged.get("snap_mm", 0) > 0)
     assert [r["stage"] for r in stages] == expected
     assert all(r["position"]["median_mm"] >= 0.0 and set(r["floor_regions"]) == set(r["regions"]) for r in stages)
     quality = json.loads((template_dir / "texture_quality.json").read_text())

@@ -119,12 +119,14 @@ def start_from(template: TexturedMesh, registered: TexturedMesh, source: str | P
 
 def register(template: TexturedMesh, mouth_mask: np.ndarray, targets: ExpressionTargets, schedule: Schedule,
              switches: Switches, progress: Callable[[str], None] = print, render: Callable | None = None,
-             on_stage: Callable[[str, TexturedMesh], None] | None = None, orientation: np.ndarray | None = None):
+             on_stage: Callable[[str, TexturedMesh], None] | None = None, orientation: np.ndarray | None = None,
+             scan: tuple[np.ndarray, np.ndarray] | None = None):
     """Register the template to one expression (GPJA or an ablation variant).
 
     ``render``: the backend's ``render_views`` (``gpja.render.renderer``) for every render of the
     registration; None = the CPU renderer. ``orientation``: the template's positions (n, 3) when ``template`` is
     another start on its topology (``start_from``), for the untangling's turned faces (``Schedule.untangle_turned``).
+    ``scan``: the expression's scan (V, F), mm, for the last step onto it (``Schedule.snap_mm``).
     """
     warn_on_uncovered_views(template, targets, render=render)
     texture = torch.tensor(template.texture, dtype=torch.float32)
@@ -132,4 +134,4 @@ def register(template: TexturedMesh, mouth_mask: np.ndarray, targets: Expression
     if on_stage is not None:
         on_stage("start", template)
     return optimise(template, targets, switches, schedule, texture=texture, mask_texture=mask, render=render,
-                    progress=progress, on_stage=on_stage, orientation=orientation)
+                    progress=progress, on_stage=on_stage, orientation=orientation, scan=scan)

@@ -97,7 +97,7 @@ class TemplateSettings:
                                                    "color_gradient",
                                                    "average_iterations", "views_per_iteration", "image_factor",
                                                    "seed", "untangle_iterations", "untangle_rings",
-                                                   "untangle_turned")})
+                                                   "untangle_turned", "snap_mm", "snap_smoothness")})
     texture_method: str = "fusion"
     texture_size: int = 1024
     texture_size_from_images: bool = True

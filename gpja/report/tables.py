@@ -374,7 +374,7 @@ def ablation_table(run: Run, published: str | None = None) -> Table:
         notes.append("Correspondence: median and mean error against the synthetic ground truth (mm).")
     caption = ("Ablations: geometric error (mm), C.D. (mm), PSNR (dB), SSIM and LPIPS of GPJA without each "
                "constraint, without the flow stage (gpja-no_flow), without the tangential hold (gpja-no_hold), without the "
-               "untangling of the folds (gpja-no_untangle), and with the "
+               "untangling of the folds (gpja-no_untangle), without the last step onto the scan (gpja-no_snap), and with the "
                "paper's own schedule (gpja-paper), and each variant's paired differences against GPJA.")
     return Table("ablation", caption, blocks, csv_header, csv_rows, notes)
 

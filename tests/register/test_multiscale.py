@@ -425,3 +425,25 @@ def test_untangle_stage_runs_last_removes_the_fold_and_is_off_by_default():
     np.testing.assert_array_equal(off.V, stages[0][1].V)  # off: the last level's mesh, as before the stage
     with pytest.raises(ValueError, match="untangle"):
         Schedule(**common, untangle_iterations=-1)
+
+
+def test_snap_stage_runs_last_puts_the_mesh_on_the_scan_and_needs_it():
+    Vt, Ft, targets = ellipsoid_targets(size=48)
+    mesh = start_mesh()
+    kw = dict(texture=torch.ones(4, 4, 3), mask_texture=torch.ones(4, 4, 1), progress_every=0)
+    common = dict(lambdas=(20.0,), iterations=(30,), lr_fraction=0.5, lr_decay=0.3)
+    stages = []
+    # nearly no smoothing of the offsets: this coarse level's vertices lie at very different gaps from the scan
+    out, log = optimise(mesh, targets, Switches(color=False), Schedule(**common, snap_mm=3.0, snap_smoothness=1e-3),
+                        on_stage=lambda name, m: stages.append((name, m)), scan=(Vt, Ft), **kw)
+    assert [name for name, _ in stages] == ["level1", "snap"] and log.levels[-1]["stage"] == "snap"
+    level = stages[0][1]
+    np.testing.assert_array_equal(out.F, level.F)
+    np.testing.assert_array_equal(out.UV, level.UV)
+    hit = surface_distance(level.V, Vt, Ft) < 2.5  # within reach along the normal, with margin
+    assert hit.mean() > 0.5
+    assert np.median(surface_distance(out.V, Vt, Ft)[hit]) < 0.2 * np.median(surface_distance(level.V, Vt, Ft)[hit])
+    with pytest.raises(ValueError, match="scan"):
+        optimise(mesh, targets, Switches(color=False), Schedule(**common, snap_mm=3.0), **kw)
+    with pytest.raises(ValueError, match="snap_mm"):
+        Schedule(**common, snap_mm=-1.0)
