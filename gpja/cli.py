@@ -120,7 +120,7 @@ def cmd_register(args: argparse.Namespace) -> None:
     from gpja.data.units import check_units
     from gpja.register.hra import Switches
     from gpja.register.multiscale import Schedule
-    from gpja.register.pipeline import register
+    from gpja.register.pipeline import before_snap, chain_start, register
     from gpja.results import LIGHTING_FILE, read_template, read_template_lighting, write_registration
 
     schedule = Schedule.from_config(_settings(args.settings), "--settings")
@@ -143,6 +143,7 @@ def cmd_register(args: argparse.Namespace) -> None:
         from gpja.results import stage_writer
 
         on_stage = stage_writer(args.stages_dir)
+    on_stage, kept = before_snap(on_stage)
     mesh, log = register(start_mesh, mask, targets, schedule, switches, progress=lambda m: print(m, flush=True),
                          render=render, on_stage=on_stage, orientation=template.V, scan=(data.scan.V, data.scan.F))
     texture_ref = os.path.relpath(Path(args.template_dir) / "texture.png", Path(args.output).parent)
@@ -150,6 +151,10 @@ def cmd_register(args: argparse.Namespace) -> None:
                "start": str(args.start_from) if args.start_from else "template",
                "lighting": str(Path(args.template_dir) / LIGHTING_FILE),
                "seconds": round(time.perf_counter() - start, 2), **log.to_json()}
+    if args.start_output:  # written first: the registration's own files mark the step done
+        from gpja.mesh import write_obj
+
+        write_obj(args.start_output, chain_start(template, kept() or mesh), texture_name=None)
     write_registration(mesh, summary, args.output, texture_ref)
     print(f"register: {args.subject}/{args.expression} done in {summary['seconds']} s ({len(mesh.V)} vertices)", flush=True)
 
@@ -471,6 +476,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stages-dir", default=None,
                    help="folder for the mesh of each stage (start, warm-up, every level) as .npz, for diagnostics")
     p.add_argument("--output", required=True, help="registered mesh .obj (a .json log is written beside it)")
+    p.add_argument("--start-output", default=None,
+                   help="also write the .obj the registration tree's children start from (--start-from): the "
+                        "template's vertices where the registration put them before the snap (snap_mm)")
     p.set_defaults(func=cmd_register)
 
     p = sub.add_parser("order", help="which expression each registration starts from: the minimum spanning tree of "

@@ -123,6 +123,11 @@ class Layout:
         """The JSON log a registration (GPJA, a baseline) or an import writes beside its mesh."""
         return self.method_dir(subject, method) / f"{expression}.json"
 
+    def registration_start(self, subject: str, method: str, expression: str) -> Path:
+        """The .obj a registration hands its children in the tree (``gpja register --start-output``): the template's
+        vertices where it put them before the snap (``gpja.register.pipeline.chain_start``)."""
+        return self.method_dir(subject, method) / "starts" / f"{expression}.obj"
+
     def registration_stages(self, subject: str, method: str, expression: str) -> Path:
         """The folder of a registration's stage meshes (``gpja register --stages-dir``)."""
         return self.method_dir(subject, method) / "stages" / expression

@@ -258,6 +258,16 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
     assert order["parent"][closed] != cfg["registration"]["template_expression"]  # a chain, not the template
     assert json.loads((work / f"results/{cfg['dataset']}/S01/gpja/{closed}.json").read_text())["start"] != "template"
     assert json.loads((work / f"results/{cfg['dataset']}/S01/gpja-paper/{closed}.json").read_text())["start"] == "template"
+    # ... from its parent's registration before the snap: the snap finishes each output, the tree carries the levels'
+    parent = order["parent"][closed]
+    handed = f"results/{cfg['dataset']}/S01/gpja/starts/{parent}.obj"
+    assert json.loads((work / f"results/{cfg['dataset']}/S01/gpja/{closed}.json").read_text())["start"] == handed
+    from gpja.results import read_stages
+
+    parent_stages = [mesh for name, mesh in read_stages(work / f"results/{cfg['dataset']}/S01/gpja/stages/{parent}")
+                     if name != "snap"]
+    handed_V = read_obj(work / handed, load_texture=False).V
+    np.testing.assert_allclose(handed_V, parent_stages[-1].V[: len(handed_V)], atol=1e-3)  # stages: float32
     stages = json.loads((work / f"results/{cfg['dataset']}/S01/gpja/stages/{closed}.json").read_text())["stages"]
     gpja_cfg = cfg["registration"]["gpja"]
     flow_levels = gpja_cfg.get("flow_levels", 1) if gpja_cfg.get("flow_rounds") else 0

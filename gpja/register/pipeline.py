@@ -117,6 +117,38 @@ def start_from(template: TexturedMesh, registered: TexturedMesh, source: str | P
     return template.with_vertices(V.astype(np.float64))
 
 
+def chain_start(template: TexturedMesh, registered: TexturedMesh) -> TexturedMesh:
+    """What a registration hands its children in the registration tree: the template's triangulation at the
+    registered positions of its vertices (the inverse of :func:`start_from`, which reads it back unchanged).
+
+    ``registered`` is the registration *before* the snap (``Schedule.snap_mm``, :func:`before_snap`): the snap
+    finishes an expression's own output, and its children start where the levels left the surface, so a tree run
+    with the snap has the same correspondence as one without it.
+    """
+    n = len(template.V)
+    if len(registered.V) < n:
+        raise ValueError(f"the registration has {len(registered.V)} vertices, fewer than the template's {n}")
+    return template.with_vertices(np.asarray(registered.V[:n], dtype=np.float64))
+
+
+def before_snap(on_stage: Callable[[str, TexturedMesh], None] | None = None):
+    """An ``on_stage`` callback for :func:`register` that also keeps the last stage's mesh before the snap.
+
+    Returns ``(callback, kept)``: ``callback`` forwards every stage to ``on_stage`` (None = to nothing);
+    ``kept()`` is that mesh after :func:`register` returns, or None when no stage ran (the caller then has the
+    returned mesh, which no snap moved).
+    """
+    kept: dict[str, TexturedMesh] = {}
+
+    def callback(name: str, mesh: TexturedMesh) -> None:
+        if name != "snap":
+            kept["mesh"] = mesh
+        if on_stage is not None:
+            on_stage(name, mesh)
+
+    return callback, lambda: kept.get("mesh")
+
+
 def register(template: TexturedMesh, mouth_mask: np.ndarray, targets: ExpressionTargets, schedule: Schedule,
              switches: Switches, progress: Callable[[str], None] = print, render: Callable | None = None,
              on_stage: Callable[[str, TexturedMesh], None] | None = None, orientation: np.ndarray | None = None,

@@ -141,6 +141,47 @@ def test_start_from_rejects_a_mesh_of_another_template(tmp_path):
         start_from(template, TexturedMesh(V, F), "no_uv.obj")
 
 
+def test_chain_start_is_read_back_by_start_from_unchanged(tmp_path):
+    """The paired inverse: what a registration hands its children (chain_start, written as the workflow writes
+    it) is what start_from gives them, to the bit; fewer vertices than the template are refused."""
+    from gpja.mesh import read_obj, write_obj
+    from gpja.register.pipeline import chain_start, start_from
+    from gpja.register.remesh import refine_by_factor
+    from tests.render.scenes import sphere, spherical_uv
+
+    V, F = sphere(subdivisions=2, radius=50.0)
+    template = TexturedMesh(V, F, spherical_uv(V), F)
+    refined = refine_by_factor(template, 2.5)
+    registered = refined.with_vertices(refined.V + np.random.default_rng(0).normal(0.0, 0.3, refined.V.shape))
+    handed = chain_start(template, registered)
+    assert len(handed.V) == len(template.V) and np.array_equal(handed.F, template.F)
+    path = tmp_path / "start.obj"
+    write_obj(path, handed, texture_name=None)
+    start = start_from(template, read_obj(path, load_texture=False), path)
+    assert np.array_equal(start.V, registered.V[: len(V)])  # %.17g: not a bit lost
+    assert np.array_equal(start_from(template, registered, "mesh").V, start.V)
+    coarse_V, coarse_F = sphere(subdivisions=1, radius=50.0)
+    with pytest.raises(ValueError, match="fewer than the template"):
+        chain_start(template, TexturedMesh(coarse_V, coarse_F))
+
+
+def test_before_snap_keeps_the_last_stage_before_the_snap_and_forwards_every_stage():
+    from gpja.register.pipeline import before_snap
+    from tests.render.scenes import sphere
+
+    V, F = sphere(subdivisions=1, radius=10.0)
+    meshes = {name: TexturedMesh(V + i, F) for i, name in enumerate(("start", "level1", "untangle", "snap"))}
+    seen = []
+    callback, kept = before_snap(lambda name, mesh: seen.append(name))
+    assert kept() is None  # no stage yet
+    for name, mesh in meshes.items():
+        callback(name, mesh)
+    assert seen == list(meshes) and kept() is meshes["untangle"]
+    callback, kept = before_snap()  # nothing to forward to, no snap stage
+    callback("level1", meshes["level1"])
+    assert kept() is meshes["level1"]
+
+
 def test_stage_meshes_round_trip_in_order_and_bad_folders_are_named(tmp_path):
     from gpja.results import read_stages, stage_writer
     from tests.render.scenes import sphere, spherical_uv

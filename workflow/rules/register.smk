@@ -82,14 +82,15 @@ checkpoint registration_order:
 
 def start_inputs(wildcards):
     """The mesh a registration starts from when it is not the template (``registration.start: tree``): the
-    GPJA registration of the expression's parent in the subject's registration tree. Variants that change
+    GPJA registration of the expression's parent in the subject's registration tree, before its snap (the
+    parent's ``--start-output``, ``starts/{parent}.obj``). Variants that change
     one constraint (or drop the flow stage) start from the same mesh as GPJA; ``gpja-paper`` always starts
     from the template."""
     if REG.get("start", "template") != "tree" or not registry.method(wildcards.method).follows_start:
         return {}
     with open(checkpoints.registration_order.get(subject=wildcards.subject).output[0]) as fh:
         parent = start_expression(json.load(fh), wildcards.expression)
-    return {"start": results_path("registration", wildcards.subject, "gpja", parent)} if parent else {}
+    return {"start": results_path("registration_start", wildcards.subject, "gpja", parent)} if parent else {}
 
 
 def start_arg(wildcards, input):
@@ -109,6 +110,7 @@ rule register_expression:
         obj=results_path("registration", "{subject}", "{method}", "{expression}"),
         log_json=results_path("registration_log", "{subject}", "{method}", "{expression}"),
         stages=directory(results_path("registration_stages", "{subject}", "{method}", "{expression}")),
+        start=results_path("registration_start", "{subject}", "{method}", "{expression}"),
     wildcard_constraints:
         method="|".join(REGISTRATION_METHODS),
     params:
@@ -135,4 +137,5 @@ rule register_expression:
     shell:
         "gpja --threads {threads} register --subject {wildcards.subject} --expression {wildcards.expression} {params.data}"
         " --cache-dir {params.cache} --targets {input.targets} --settings {params.settings}"
-        " --template-dir {params.template_dir} {params.without} {params.start} --backend {params.backend} --output {output.obj} --stages-dir {output.stages} > {log} 2>&1"
+        " --template-dir {params.template_dir} {params.without} {params.start} --backend {params.backend} --output {output.obj} --stages-dir {output.stages}"
+        " --start-output {output.start} > {log} 2>&1"
