@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from gpja.cholesky import factorize
+from gpja.mesh import TexturedMesh
 from gpja.register.laplacian import uniform_laplacian
 from gpja.surface import bounding_box_centre, raycasting_scene, vertex_normals
 
@@ -49,8 +50,7 @@ def normal_offsets(V: np.ndarray, normals: np.ndarray, scan_V: np.ndarray, scan_
 
     origin = bounding_box_centre(scan_V)
     scene = raycasting_scene(np.asarray(scan_V, dtype=np.float64) - origin, scan_F)
-    scan_normals = np.cross(scan_V[scan_F[:, 1]] - scan_V[scan_F[:, 0]], scan_V[scan_F[:, 2]] - scan_V[scan_F[:, 0]])
-    scan_normals /= np.linalg.norm(scan_normals, axis=1, keepdims=True).clip(1e-300)
+    scan_normals = TexturedMesh(np.asarray(scan_V, dtype=np.float64), scan_F).face_normals()
     nearest = np.full(len(V), np.inf)
     offsets = np.zeros(len(V))
     for sign in (1.0, -1.0):
