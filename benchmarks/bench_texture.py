@@ -86,7 +86,7 @@ def main() -> None:
 
     start = time.perf_counter()
     texture, observed, sh, log = build_texture(fitted, targets, settings, args.lighting,
-                                               progress=lambda m: print(m, file=sys.stderr))
+                                               progress=lambda m: print(m, file=sys.stderr), scan_V=data.scan.V)
     seconds = time.perf_counter() - start
 
     renders = render_with_texture(fitted, texture, targets.cameras, torch.tensor(sh, dtype=torch.float32))

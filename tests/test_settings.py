@@ -31,6 +31,7 @@ NON_DEFAULT = {
                               "texture_size_from_images": False, "fusion_min_cos": 0.2, "fusion_feather_px": 5.0,
                               "fusion_occlusion_mm": 2.0, "fusion_robust_iterations": 0, "fusion_robust_scale": 0.1,
                               "fusion_off_scan_weight": 0.5, "fusion_scan_normals": False, "fusion_normal_blur_px": 2.0,
+                              "fusion_scan_distance_mm": 7.5,
                               "texture_refine_iterations": 10,
                               "texture_refine_smoothness": 2.0, "mouth_mask": "interior", "mouth_mask_dark": 0.3},
     "registration.gpja": {"lambdas": [40, 30, 20, 10], "iterations": [1, 2, 3, 4], "refine_factor": 3.0,

@@ -323,8 +323,8 @@ def _rescale(sh: np.ndarray, albedo: np.ndarray, obs: TextureObservations) -> tu
 
 
 def build_texture(mesh: TexturedMesh, targets: ExpressionTargets, settings: TemplateSettings, lighting: str = "estimate",
-                  progress: Callable[[str], None] = print, render: Callable | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+                  progress: Callable[[str], None] = print, render: Callable | None = None,
+                  scan_V: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The texture of the fitted mesh, which texels the views see, and the lighting it is relative to.
 
     Args:
@@ -333,6 +333,8 @@ def build_texture(mesh: TexturedMesh, targets: ExpressionTargets, settings: Temp
         lighting: one of :data:`LIGHTING_CHOICES`: ``estimate`` = fitted to the images,
             ``uniform`` = white light of radiance 1 (the paper's FaceScape assumption).
         render: a backend's ``render_views``; None = the CPU renderer.
+        scan_V: (n, 3) the template expression's scan vertices, mm: the fusion leaves texels off the
+            scan unobserved (``fusion_scan_distance_mm``); None = no such test.
     Returns:
         texture (T, T, 3) float32 in [0, 1], observed (T, T) bool, sh (9, 3) float64, log dict.
     """
@@ -346,7 +348,7 @@ def build_texture(mesh: TexturedMesh, targets: ExpressionTargets, settings: Temp
                                               fusion.fusion_min_cos)
     t1 = time.perf_counter()
     scan = _scan_normal_images(targets, fusion) if fusion.fusion_scan_normals else (None, None)
-    obs = observe_texture(mesh, targets.cameras, targets.images.numpy(), buffers, size, fusion, *scan)
+    obs = observe_texture(mesh, targets.cameras, targets.images.numpy(), buffers, size, fusion, *scan, scan_V=scan_V)
     t2 = time.perf_counter()
     if lighting == "estimate":
         sh = _estimate_lighting(targets)
@@ -435,7 +437,7 @@ def create_template(scan_V: np.ndarray, targets: ExpressionTargets, settings: Te
                                texture=dummy_tex, mask_texture=dummy_mask, render=render, progress=progress)
     t_fit = time.perf_counter()
     progress(f"template: depth-only fit done ({len(fitted.V)} vertices, {t_fit - t0:.1f} s)")
-    texture, observed, sh, tex_log = build_texture(fitted, targets, settings, lighting, progress, render)
+    texture, observed, sh, tex_log = build_texture(fitted, targets, settings, lighting, progress, render, scan_V)
     t_tex = time.perf_counter()
     dense = TexturedMesh(fitted.V, fitted.F, fitted.UV, fitted.F_uv, texture)
     coarse = decimate_with_texture(dense, settings.template_faces)

@@ -38,7 +38,12 @@ texel is computed directly from the images instead:
    is smoother than the face, and its normals would leave shading in the
    albedo (on the default data 35.3 dB against the ground-truth albedo with the
    mesh's normals, 37.9 dB with the scan's).
-6. Texels no view sees are filled by push-pull inside their chart, seams made
+6. Texels farther than ``fusion_scan_distance_mm`` from every scan vertex
+   count as unobserved (:func:`texels_off_scan`): the fitted bust bridges a
+   hole of the scan there (under the jaw of an open mouth, which no camera
+   sees well), its texels are not on the captured surface, and the pixels
+   they project to show something else (the neck behind, in shadow).
+7. Texels no view sees are filled by push-pull inside their chart, seams made
    to agree and gutters dilated (``texture_fill``).
 
 The fused colour does not depend on the lighting: another lighting only
@@ -106,6 +111,8 @@ class FusionSettings:
             false = always the fitted mesh's normals.
         fusion_normal_blur_px: Gaussian blur (px) of the scan's normal images before they shade (an MVS
             scan's normals are noisy at its vertex spacing; 0 = none).
+        fusion_scan_distance_mm: texels farther than this from every scan vertex are not observed (the
+            fitted mesh bridges a hole of the scan there), mm; 0 = every texel may be observed.
     """
 
     fusion_min_cos: float = 0.1
@@ -116,6 +123,7 @@ class FusionSettings:
     fusion_off_scan_weight: float = 0.02
     fusion_scan_normals: bool = True
     fusion_normal_blur_px: float = 1.0
+    fusion_scan_distance_mm: float = 5.0
 
     def __post_init__(self) -> None:
         if not 0.0 <= float(self.fusion_min_cos) < 1.0:
@@ -127,6 +135,8 @@ class FusionSettings:
             raise ValueError(f"fusion_off_scan_weight must be in (0, 1], got {self.fusion_off_scan_weight}")
         if float(self.fusion_normal_blur_px) < 0:
             raise ValueError(f"fusion_normal_blur_px must be >= 0, got {self.fusion_normal_blur_px}")
+        if not float(self.fusion_scan_distance_mm) >= 0:
+            raise ValueError(f"fusion_scan_distance_mm must be >= 0, got {self.fusion_scan_distance_mm}")
         if int(self.fusion_robust_iterations) < 0:
             raise ValueError(f"fusion_robust_iterations must be >= 0, got {self.fusion_robust_iterations}")
 
@@ -266,6 +276,26 @@ def observe_texels(P: np.ndarray, normals: np.ndarray, texel_mm: np.ndarray, cam
     return colors, weights, shading
 
 
+def texels_off_scan(P: np.ndarray, scan_V: np.ndarray, distance_mm: float) -> np.ndarray:
+    """(N,) bool: the texel points ``P (N, 3)`` mm farther than ``distance_mm`` from every scan vertex ``scan_V (n, 3)``.
+
+    The distance to the nearest vertex, not to the surface: it overstates the surface distance by at most
+    half the scan's vertex spacing (under a millimetre on an MVS scan), far below the millimetres this
+    test is for, and scipy's k-d tree answers it without a ray-casting scene. ``distance_mm`` 0 = none.
+    """
+    if not distance_mm > 0:
+        return np.zeros(len(P), dtype=bool)
+    from scipy.spatial import cKDTree
+
+    scan_V = np.asarray(scan_V, dtype=np.float64)
+    if len(scan_V) == 0:
+        return np.ones(len(P), dtype=bool)
+    # the bound is exclusive: one ulp above it, so a texel at exactly distance_mm counts as on the scan
+    bound = np.nextafter(float(distance_mm), np.inf)
+    dist, _ = cKDTree(scan_V).query(np.asarray(P, dtype=np.float64), distance_upper_bound=bound)
+    return ~(dist <= float(distance_mm))
+
+
 def robust_mean(colors: np.ndarray, weights: np.ndarray, iterations: int, scale: float
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean over views with Cauchy reweighting of the views far from it.
@@ -366,7 +396,8 @@ class TextureObservations:
 
 def observe_texture(mesh: TexturedMesh, cameras: Sequence[Camera], images: np.ndarray, buffers: ViewBuffers,
                     size: int, settings: FusionSettings, scan_normals: np.ndarray | None = None,
-                    scan_coverage: np.ndarray | None = None) -> TextureObservations:
+                    scan_coverage: np.ndarray | None = None, scan_V: np.ndarray | None = None
+                    ) -> TextureObservations:
     """Fuse the views' colours at every texel of a (size, size) texture of ``mesh`` (steps 1-4).
 
     Args:
@@ -374,6 +405,8 @@ def observe_texture(mesh: TexturedMesh, cameras: Sequence[Camera], images: np.nd
         buffers: :func:`view_buffers` of the mesh's depth in the same views.
         scan_normals, scan_coverage: (B, H, W, 3), (B, H, W) the scan's normal and coverage images:
             the shading normals where the scan covers the texel (:func:`observe_texels`); None = the mesh's.
+        scan_V: (n, 3) the scan's vertices, mm: texels off the scan (:func:`texels_off_scan`,
+            ``fusion_scan_distance_mm``) are not observed; None = no such test.
     """
     texels = rasterize_uv(mesh.UV, mesh.F_uv, size)
     P = texels.surface(mesh.V, mesh.F)
@@ -383,6 +416,8 @@ def observe_texture(mesh: TexturedMesh, cameras: Sequence[Camera], images: np.nd
     texel_mm = face_texel_mm(mesh, size)[texels.face]
     colors, weights, shading_normals = observe_texels(P, normals, texel_mm, cameras, images, buffers, settings,
                                                       scan_normals, scan_coverage)
+    if scan_V is not None:
+        weights[:, texels_off_scan(P, scan_V, settings.fusion_scan_distance_mm)] = 0.0
     radiance, total = robust_mean(colors, weights, settings.fusion_robust_iterations, settings.fusion_robust_scale)
     face_chart = uv_charts(mesh.F_uv, len(mesh.UV))
     chart_image = np.where(texels.face_image >= 0, face_chart[np.maximum(texels.face_image, 0)], -1)

@@ -7,7 +7,7 @@ from gpja.lighting import uniform_sh
 from gpja.mesh import TexturedMesh
 from gpja.register.texture_fill import fill_texture, sample_bilinear
 from gpja.register.texture_fusion import (FULL_WEIGHT, FusionSettings, choose_texture_size, finish_texture,
-                                          observe_texture, robust_mean, texel_albedo, view_buffers)
+                                          observe_texture, robust_mean, texel_albedo, texels_off_scan, view_buffers)
 from gpja.render import Topology, render_views
 from gpja.render.uv_raster import rasterize_uv, seam_copies, uv_to_texel
 from tests.register.test_remesh import seamed_sphere
@@ -56,9 +56,9 @@ def render(mesh, texture, cams, sh, antialias=False):
             out.dense("coverage")[..., 0].detach().numpy() > 0.99)
 
 
-def fuse(mesh, cams, images, depth, size, sh, settings=FusionSettings()):
+def fuse(mesh, cams, images, depth, size, sh, settings=FusionSettings(), scan_V=None):
     buffers = view_buffers(depth, cams, settings.fusion_feather_px)
-    obs = observe_texture(mesh, cams, images, buffers, size, settings)
+    obs = observe_texture(mesh, cams, images, buffers, size, settings, scan_V=scan_V)
     texture, observed = finish_texture(obs, texel_albedo(obs, sh))
     return texture, observed, obs
 
@@ -244,10 +244,55 @@ def test_view_buffers_mark_background_and_depth_jumps():
     np.testing.assert_array_equal(scaled.nearest, buffers.nearest)
 
 
+def test_texels_off_scan_is_the_distance_to_the_nearest_scan_vertex():
+    scan_V = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
+    P = np.array([[0.0, 4.9, 0.0], [0.0, 5.1, 0.0], [10.0, 0.0, 4.0], [5.0, 0.0, 0.0], [30.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(texels_off_scan(P, scan_V, 5.0), [False, True, False, False, True])
+    assert not texels_off_scan(P, scan_V, 0.0).any()  # 0 = no test
+    assert texels_off_scan(P, np.zeros((0, 3)), 5.0).all()  # an empty scan measures nothing
+
+
+def test_texels_bridging_a_hole_of_the_scan_are_not_observed():
+    # The fitted mesh is a whole plane; the capture has only its left half, and through the right half the
+    # cameras see a red wall 40 mm behind it. Without the scan's vertices the right half's texels take the
+    # wall's red; with them, the texels farther than fusion_scan_distance_mm from the scan are unobserved
+    # and filled from the left half.
+    fitted = plane(uv_box=(0.05, 0.05, 0.9, 0.9))
+    on_left = fitted.V[fitted.F].mean(1)[:, 0] < 0
+    left = TexturedMesh(fitted.V, fitted.F[on_left], fitted.UV, fitted.F[on_left])
+    wall = plane(size_mm=160.0, n=2, z=-40.0, uv_box=(0.97, 0.97, 0.995, 0.995))
+    scene = merge(left, wall)
+    truth = np.full((64, 64, 3), 0.6, np.float32)
+    truth[:3, 61:] = (1.0, 0.0, 0.0)  # the wall's corner of the atlas
+    cams = [camera((0.0, 0.0, 400.0), size=160), camera((120.0, 0.0, 380.0), size=160)]
+    images, _, _ = render(scene, truth, cams, uniform_sh())
+    _, depth, _ = render(fitted, truth, cams, uniform_sh())
+    gx, gy = np.meshgrid(np.arange(-50.0, 0.5, 1.0), np.arange(-50.0, 50.5, 1.0))  # the scan: 1 mm samples
+    scan_V = np.concatenate([np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1),
+                             np.stack([gx.ravel() + 60.0, gy.ravel(), np.full(gx.size, -40.0)], 1)])
+    settings = FusionSettings()
+    for scan in (None, scan_V):
+        texture, observed, obs = fuse(fitted, cams, images, depth, 64, uniform_sh(), settings, scan_V=scan)
+        x, y = obs.texels.surface(fitted.V, fitted.F)[:, :2].T
+        far = x > settings.fusion_scan_distance_mm + 1.0
+        rows, cols = obs.texels.rows[far], obs.texels.cols[far]
+        if scan is None:
+            assert observed[rows, cols].mean() > 0.8
+            assert np.median(texture[rows, cols, 0] - texture[rows, cols, 1]) > 0.5
+        else:
+            assert not observed[rows, cols].any()
+            near = (x < -2.0) & (x > -40.0) & (np.abs(y) < 40.0)  # away from the silhouettes' feather
+            assert observed[obs.texels.rows[near], obs.texels.cols[near]].all()
+            texels = obs.texels.rows[near], obs.texels.cols[near]
+            assert np.abs(texture[texels] - 0.6).max() < FUSION_FLAT_ALBEDO
+
+
 def test_fusion_settings_are_checked():
     with pytest.raises(ValueError):
         FusionSettings(fusion_min_cos=1.0)
     with pytest.raises(ValueError):
         FusionSettings(fusion_robust_iterations=-1)
+    with pytest.raises(ValueError):
+        FusionSettings(fusion_scan_distance_mm=-1.0)
     with pytest.raises(ValueError):
         FusionSettings(fusion_feather_px=0.0)
