@@ -58,7 +58,7 @@ NON_DEFAULT = {
                 "correspondence_max_distance_mm": 1.5, "photometric": False},
     "figures": {"view": "3", "heatmap_max_mm": 2.0, "render_size": 128},
     "applications.remesh": {"initial_vertices": 5000, "tolerance_mm": 0.1, "tangential_tolerance_mm": None,
-                            "max_vertices": 60000, "max_rounds": 3},
+                            "max_vertices": 60000, "max_rounds": 3, "face_samples": 4},
     "applications.animation": {"sequence": ["1_neutral", "2_smile"], "frames_per_transition": 5, "fps": 12,
                                "size": 64, "yaw_deg": [10.0], "strip_frames": 3},
     "applications.export": {"base": "2_smile"},

@@ -37,6 +37,11 @@ SEAM_AGREEMENT_MM = 1e-4
 #: :func:`fit_triangulation` splits whole faces once a round leaves more than this share of the previous round's
 #: bad edges (on S01's expressions red-green rounds keep 0.5-0.78 of them until only folds are left, then 0.9+).
 STALLED = 0.85
+#: Where :func:`chord_errors` looks inside each face (barycentric weights of its corners), by
+#: ``face_samples``: the centre alone, or the centre and the three points halfway from it to the corners
+#: (a fold of the expression's surface inside one face, which the centre misses, shows at one of those).
+FACE_SAMPLES = {1: np.full((1, 3), 1.0 / 3.0),
+                4: np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])}
 #: Growth per refinement round of :func:`common_triangulation` (the registration's own factor).
 GROWTH_PER_ROUND = 2.5
 
@@ -296,7 +301,8 @@ def offsets_at_uv(mesh: TexturedMesh, index: UVIndex, uv: np.ndarray, points: np
 
 
 def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequence[TexturedMesh],
-                 indices: Mapping[str, UVIndex] | None = None, tangential_scale: float | None = None) -> np.ndarray:
+                 indices: Mapping[str, UVIndex] | None = None, tangential_scale: float | None = None,
+                 face_samples: int = 1) -> np.ndarray:
     """(e,) float64 mm: per edge of the common triangulation (``unique_edges(common.F)``), the largest error over
     ``meshes`` (by name, or a sequence; ``indices``: their :class:`UVIndex` by name) of the straight edge
     against the surface it stands for.
@@ -304,15 +310,20 @@ def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequ
     - ``tangential_scale`` None: the distance between the point the edge's texture midpoint lands on and the
       midpoint of its two remeshed ends.
     - Otherwise that offset split along the landing face's normal and within its plane, the error being
-      ``max(normal, tangential_scale * tangential)``; the same at every face's texture centre (against the mean
-      of its three remeshed corners), charged to the face's longest edge in that expression. The normal part
-      is the surface's deviation; the tangential part only slides the texture, so it can be allowed more.
+      ``max(normal, tangential_scale * tangential)``; the same inside every face at the points
+      :data:`FACE_SAMPLES` ``[face_samples]`` (1: its texture centre, against the mean of its three remeshed
+      corners; 4: also halfway from there to each corner), charged to the face's longest edge in that
+      expression. The normal part is the surface's deviation; the tangential part only slides the texture, so
+      it can be allowed more.
     """
     if not isinstance(meshes, Mapping):
         meshes = {f"mesh {i}": m for i, m in enumerate(meshes)}
+    if face_samples not in FACE_SAMPLES:
+        raise ValueError(f"face_samples must be one of {sorted(FACE_SAMPLES)}, got {face_samples}")
+    weights = FACE_SAMPLES[face_samples]
     edges, face_edge = unique_edges(common.F)
     mid_uv = edge_uv_midpoints(common)
-    centre_uv = common.UV[common.F_uv].mean(axis=1) if tangential_scale is not None else None
+    face_uv = [np.einsum("k,fkc->fc", w, common.UV[common.F_uv]) for w in weights]
     worst = np.zeros(len(edges))
     for name, mesh in meshes.items():
         index = (indices or {}).get(name) or UVIndex(mesh)
@@ -323,10 +334,11 @@ def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequ
             continue
         normal, tangential = offsets_at_uv(mesh, index, mid_uv, chord)
         worst = np.maximum(worst, np.maximum(normal, tangential_scale * tangential))
-        normal, tangential = offsets_at_uv(mesh, index, centre_uv, ends[common.F].mean(axis=1))
         length = np.linalg.norm(ends[edges[:, 0]] - ends[edges[:, 1]], axis=1)
         longest = face_edge[np.arange(len(face_edge)), np.argmax(length[face_edge], axis=1)]
-        np.maximum.at(worst, longest, np.maximum(normal, tangential_scale * tangential))
+        for w, uv in zip(weights, face_uv):
+            normal, tangential = offsets_at_uv(mesh, index, uv, np.einsum("k,fkc->fc", w, ends[common.F]))
+            np.maximum.at(worst, longest, np.maximum(normal, tangential_scale * tangential))
     return worst
 
 
@@ -334,7 +346,7 @@ def fit_triangulation(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] |
                       tolerance_mm: float,
                       max_vertices: int, max_rounds: int = 8,
                       progress: Callable[[str], None] = print,
-                      tangential_tolerance_mm: float | None = None) -> TexturedMesh:
+                      tangential_tolerance_mm: float | None = None, face_samples: int = 1) -> TexturedMesh:
     """Split the common triangulation's edges whose chord misses any expression's surface by more than
     ``tolerance_mm`` (:func:`chord_errors`), round after round, until none is left, ``max_rounds`` have run, or
     the next round would pass ``max_vertices`` (then the worst edges are split up to it).
@@ -344,7 +356,8 @@ def fit_triangulation(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] |
     ``tolerance_mm`` and the offset along the surface (where the texture lands) against
     ``tangential_tolerance_mm``: where the registration's parametrisation stretches between expressions (its
     untangling moves vertices along the surface), a flat patch needs no splitting for its texture to slide a
-    tenth of a millimetre.
+    tenth of a millimetre. ``face_samples``: where inside each face the normal offset is checked too
+    (:func:`chord_errors`).
 
     A round splits the bad edges alone (each triangle's red-green template), which converges where a
     surface is smooth. Where an expression's surface is folded (crumpled parts no camera saw), the edges a
@@ -358,7 +371,7 @@ def fit_triangulation(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] |
     scale = None if tangential_tolerance_mm is None else tolerance_mm / tangential_tolerance_mm
     previous = None
     for round_ in range(max_rounds):
-        errors = chord_errors(common, meshes, indices, scale)
+        errors = chord_errors(common, meshes, indices, scale, face_samples)
         split = errors > tolerance_mm
         count = int(split.sum())
         stalled = previous is not None and count > STALLED * previous

@@ -26,6 +26,9 @@ class RemeshSettings:
             tangential tolerance").
         max_vertices: the common triangulation never grows beyond this.
         max_rounds: at most this many splitting rounds.
+        face_samples: with ``tangential_tolerance_mm``, where inside each face the offset along the normal is
+            checked too: 1 = the face's centre, 4 = also halfway from it to each corner (a fold inside one
+            face that the centre misses).
     """
 
     initial_vertices: int = 40000
@@ -33,6 +36,7 @@ class RemeshSettings:
     tangential_tolerance_mm: float | None = 0.1
     max_vertices: int = 200000
     max_rounds: int = 16
+    face_samples: int = 1
 
     from_config = classmethod(from_section)
 
@@ -46,6 +50,8 @@ class RemeshSettings:
             raise ValueError(f"tangential_tolerance_mm must be positive or null, got {self.tangential_tolerance_mm}")
         if self.max_rounds < 0:
             raise ValueError(f"max_rounds must be >= 0, got {self.max_rounds}")
+        if self.face_samples not in (1, 4):
+            raise ValueError(f"face_samples must be 1 or 4, got {self.face_samples}")
 
 
 @dataclass(frozen=True)

@@ -68,7 +68,8 @@ def triangulate(template_dir: str | Path, meshes: Mapping[str, str | Path], sett
                       and np.array_equal(m.V, template.V))}
     common = fit_triangulation(common, fitted, settings.tolerance_mm, settings.max_vertices,
                                settings.max_rounds, progress=record,
-                               tangential_tolerance_mm=settings.tangential_tolerance_mm)
+                               tangential_tolerance_mm=settings.tangential_tolerance_mm,
+                               face_samples=settings.face_samples)
     write_obj(output, common, texture_name=texture_ref(template_dir, output))
     log = {"template": str(Path(template_dir) / "template.obj"), "expressions": {k: str(v) for k, v in meshes.items()},
            "vertices": len(common.V), "faces": len(common.F), "texture_coordinates": len(common.UV),

@@ -407,6 +407,8 @@ def observe_texture(mesh: TexturedMesh, cameras: Sequence[Camera], images: np.nd
             the shading normals where the scan covers the texel (:func:`observe_texels`); None = the mesh's.
         scan_V: (n, 3) the scan's vertices, mm: texels off the scan (:func:`texels_off_scan`,
             ``fusion_scan_distance_mm``) are not observed; None = no such test.
+    Raises:
+        InputError: every texel is off the scan (another frame or unit than the fitted mesh's).
     """
     texels = rasterize_uv(mesh.UV, mesh.F_uv, size)
     P = texels.surface(mesh.V, mesh.F)
@@ -417,7 +419,12 @@ def observe_texture(mesh: TexturedMesh, cameras: Sequence[Camera], images: np.nd
     colors, weights, shading_normals = observe_texels(P, normals, texel_mm, cameras, images, buffers, settings,
                                                       scan_normals, scan_coverage)
     if scan_V is not None:
-        weights[:, texels_off_scan(P, scan_V, settings.fusion_scan_distance_mm)] = 0.0
+        off = texels_off_scan(P, scan_V, settings.fusion_scan_distance_mm)
+        if off.all():
+            raise InputError("template", f"no texel of the fitted mesh lies within fusion_scan_distance_mm = "
+                             f"{settings.fusion_scan_distance_mm:g} mm of the scan: are the scan and the views in one "
+                             "frame and in millimetres?")
+        weights[:, off] = 0.0
     radiance, total = robust_mean(colors, weights, settings.fusion_robust_iterations, settings.fusion_robust_scale)
     face_chart = uv_charts(mesh.F_uv, len(mesh.UV))
     chart_image = np.where(texels.face_image >= 0, face_chart[np.maximum(texels.face_image, 0)], -1)

@@ -453,6 +453,25 @@ def test_chord_errors_split_a_slide_along_a_flat_surface_from_a_deviation():
     assert chord_errors(common, [bumped_grid], tangential_scale=0.0).max() > 0.05
 
 
+def test_chord_errors_see_a_fold_inside_a_face_with_four_face_samples():
+    # analytic: a narrow bump (1 mm high, sigma 0.4 mm) halfway between one coarse face's centre and a corner;
+    # the centre (and every edge midpoint) sees almost nothing of it, the face's samples halfway to the
+    # corners see it all
+    common = flat_grid(n=6)
+    fine = flat_grid(n=100)
+    A, B, C = common.V[common.F[0]]
+    peak = (2 * A + 0.5 * B + 0.5 * C) / 3.0
+    r2 = ((fine.V[:, :2] - peak[:2]) ** 2).sum(1)
+    bump = fine.with_vertices(fine.V + np.column_stack([0 * r2, 0 * r2, np.exp(-r2 / (2 * 0.4 ** 2))]))
+    centre_only = chord_errors(common, [bump], tangential_scale=0.0, face_samples=1)
+    four = chord_errors(common, [bump], tangential_scale=0.0, face_samples=4)
+    assert centre_only.max() < 0.05  # measured 0.014: the bump's tail at the nearest edge midpoint
+    assert four.max() > 0.5  # measured 0.88 at n=150: the bump's height as the grid samples it
+    assert (four >= centre_only - REMESH_EXACT_MM).all()  # the centre is still one of the samples
+    with pytest.raises(ValueError):
+        chord_errors(common, [bump], tangential_scale=0.0, face_samples=3)
+
+
 # --- 7. fit_triangulation ---------------------------------------------------------------------------------
 
 def test_fit_triangulation_converges_below_the_tolerance(template, common2, expression_rest):

@@ -13,6 +13,7 @@ from gpja.mesh import TexturedMesh
 from gpja.register import pipeline, template
 from gpja.register.hra import ExpressionTargets, Switches
 from gpja.register.multiscale import Schedule, optimise
+from gpja.register.texture_fusion import FusionSettings
 from gpja.render import render_views
 from tests.register.test_multiscale import ellipsoid_targets, start_mesh
 from tests.render.scenes import ring_cameras, sphere, spherical_uv
@@ -90,14 +91,17 @@ def test_create_template_passes_the_function_to_the_fit_and_the_texture(monkeypa
     monkeypatch.setattr(template, "place_bust", lambda bust, scan_V: bust)
     monkeypatch.setattr(template, "decimate_with_texture", lambda dense, faces: dense)
     quiet = dict(progress=lambda m: None, lighting="uniform")
+    # the bust is not placed on the scene here, so no texel is near the "scan": the off-scan test is off
+    off_scan_test_off = FusionSettings(fusion_scan_distance_mm=0.0)
     # the paper's texture optimisation gets the function
     spy = Spy()
-    settings = template.TemplateSettings(bust_edge_mm=12.0, texture_size=16, texture_method="optimise")
+    settings = template.TemplateSettings(bust_edge_mm=12.0, texture_size=16, texture_method="optimise",
+                                         fusion=off_scan_test_off)
     template.create_template(mesh.V, targets, settings, render=spy, **quiet)
     assert seen == {"fit": spy, "texture": spy} and spy.passes == [("depth",)]  # + the fusion's depth buffer
     # the fusion renders its depth buffers with it, bit for bit as the default renderer
     spy = Spy()
-    settings = template.TemplateSettings(bust_edge_mm=12.0, texture_size=16)
+    settings = template.TemplateSettings(bust_edge_mm=12.0, texture_size=16, fusion=off_scan_test_off)
     fused = template.create_template(mesh.V, targets, settings, render=spy, **quiet)
     default = template.create_template(mesh.V, targets, settings, **quiet)
     assert spy.passes == [("depth",)]

@@ -3,6 +3,7 @@ import pytest
 import torch
 
 from gpja.camera import Camera
+from gpja.errors import InputError
 from gpja.lighting import uniform_sh
 from gpja.mesh import TexturedMesh
 from gpja.register.texture_fill import fill_texture, sample_bilinear
@@ -285,6 +286,14 @@ def test_texels_bridging_a_hole_of_the_scan_are_not_observed():
             assert observed[obs.texels.rows[near], obs.texels.cols[near]].all()
             texels = obs.texels.rows[near], obs.texels.cols[near]
             assert np.abs(texture[texels] - 0.6).max() < FUSION_FLAT_ALBEDO
+
+
+def test_a_scan_nowhere_near_the_fitted_mesh_is_an_input_error():
+    mesh = plane()
+    cams = [camera((0.0, 0.0, 400.0), size=64)]
+    images, depth, _ = render(mesh, ramp_texture(), cams, uniform_sh())
+    with pytest.raises(InputError, match="fusion_scan_distance_mm"):
+        fuse(mesh, cams, images, depth, 32, uniform_sh(), scan_V=mesh.V * 1000.0 + 500.0)  # another unit and frame
 
 
 def test_fusion_settings_are_checked():
