@@ -323,7 +323,9 @@ def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequ
     weights = FACE_SAMPLES[face_samples]
     edges, face_edge = unique_edges(common.F)
     mid_uv = edge_uv_midpoints(common)
-    face_uv = [np.einsum("k,fkc->fc", w, common.UV[common.F_uv]) for w in weights]
+    # the centre as a mean (the same bits as before the other samples existed), the others weighted
+    face_uv = [common.UV[common.F_uv].mean(axis=1)] + [np.einsum("k,fkc->fc", w, common.UV[common.F_uv])
+                                                        for w in weights[1:]]
     worst = np.zeros(len(edges))
     for name, mesh in meshes.items():
         index = (indices or {}).get(name) or UVIndex(mesh)
@@ -336,8 +338,9 @@ def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequ
         worst = np.maximum(worst, np.maximum(normal, tangential_scale * tangential))
         length = np.linalg.norm(ends[edges[:, 0]] - ends[edges[:, 1]], axis=1)
         longest = face_edge[np.arange(len(face_edge)), np.argmax(length[face_edge], axis=1)]
-        for w, uv in zip(weights, face_uv):
-            normal, tangential = offsets_at_uv(mesh, index, uv, np.einsum("k,fkc->fc", w, ends[common.F]))
+        for k, (w, uv) in enumerate(zip(weights, face_uv)):
+            points = ends[common.F].mean(axis=1) if k == 0 else np.einsum("k,fkc->fc", w, ends[common.F])
+            normal, tangential = offsets_at_uv(mesh, index, uv, points)
             np.maximum.at(worst, longest, np.maximum(normal, tangential_scale * tangential))
     return worst
 
