@@ -89,7 +89,8 @@ TEMPLATE_EXPRESSION = "3_mouth_stretch"
 #: The registered expressions: name -> refine_by_factor's factor (each its own triangulation of the atlas).
 REFINE = {"1_neutral": 2.0, "2_smile": 3.0}
 REMESH_SETTINGS = {"initial_vertices": 2 * (2 + N_LAT * N_LON), "tolerance_mm": CHORD_TOLERANCE_MM,
-                   "tangential_tolerance_mm": 2 * CHORD_TOLERANCE_MM, "max_vertices": 20000, "max_rounds": 8}
+                   "tangential_tolerance_mm": 2 * CHORD_TOLERANCE_MM, "max_vertices": 20000, "max_rounds": 8,
+                   "face_samples": 1}
 SEQUENCE = ["1_neutral", "2_smile", TEMPLATE_EXPRESSION, "1_neutral"]
 ANIMATION_SETTINGS = {"sequence": SEQUENCE, "frames_per_transition": 2, "size": 48, "strip_frames": 3}
 ARTIST_SETTINGS = {"standin_faces": 300, "texture_size": 64}
