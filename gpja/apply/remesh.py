@@ -37,11 +37,11 @@ SEAM_AGREEMENT_MM = 1e-4
 #: :func:`fit_triangulation` splits whole faces once a round leaves more than this share of the previous round's
 #: bad edges (on S01's expressions red-green rounds keep 0.5-0.78 of them until only folds are left, then 0.9+).
 STALLED = 0.85
-#: Where :func:`chord_errors` looks inside each face (barycentric weights of its corners), by
-#: ``face_samples``: the centre alone, or the centre and the three points halfway from it to the corners
-#: (a fold of the expression's surface inside one face, which the centre misses, shows at one of those).
-FACE_SAMPLES = {1: np.full((1, 3), 1.0 / 3.0),
-                4: np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])}
+#: Where :func:`chord_errors` looks inside each face besides its centre (barycentric weights of its corners), by
+#: ``face_samples``: nowhere else (1), or halfway from the centre to each corner (4: a fold of the expression's
+#: surface inside one face, which the centre misses, shows at one of those).
+FACE_SAMPLES = {1: np.zeros((0, 3)),
+                4: np.array([[2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])}
 #: Growth per refinement round of :func:`common_triangulation` (the registration's own factor).
 GROWTH_PER_ROUND = 2.5
 
@@ -300,6 +300,13 @@ def offsets_at_uv(mesh: TexturedMesh, index: UVIndex, uv: np.ndarray, points: np
     return np.abs(along), np.linalg.norm(offset - along[:, None] * normal, axis=1)
 
 
+def inside_faces(corners: np.ndarray, face_samples: int) -> list[np.ndarray]:
+    """The points :func:`chord_errors` checks inside each face, from its corners' values ``corners (f, 3, c)``:
+    a list of (f, c) arrays, the centre first (a mean, so that ``face_samples`` 1 keeps the bits it always had),
+    then the points :data:`FACE_SAMPLES` ``[face_samples]``."""
+    return [corners.mean(axis=1)] + [np.einsum("k,fkc->fc", w, corners) for w in FACE_SAMPLES[face_samples]]
+
+
 def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequence[TexturedMesh],
                  indices: Mapping[str, UVIndex] | None = None, tangential_scale: float | None = None,
                  face_samples: int = 1) -> np.ndarray:
@@ -311,21 +318,17 @@ def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequ
       midpoint of its two remeshed ends.
     - Otherwise that offset split along the landing face's normal and within its plane, the error being
       ``max(normal, tangential_scale * tangential)``; the same inside every face at the points
-      :data:`FACE_SAMPLES` ``[face_samples]`` (1: its texture centre, against the mean of its three remeshed
-      corners; 4: also halfway from there to each corner), charged to the face's longest edge in that
-      expression. The normal part is the surface's deviation; the tangential part only slides the texture, so
-      it can be allowed more.
+      :func:`inside_faces` (1: its texture centre, against the mean of its three remeshed corners; 4: also
+      halfway from there to each corner), charged to the face's longest edge in that expression. The normal
+      part is the surface's deviation; the tangential part only slides the texture, so it can be allowed more.
     """
     if not isinstance(meshes, Mapping):
         meshes = {f"mesh {i}": m for i, m in enumerate(meshes)}
     if face_samples not in FACE_SAMPLES:
         raise ValueError(f"face_samples must be one of {sorted(FACE_SAMPLES)}, got {face_samples}")
-    weights = FACE_SAMPLES[face_samples]
     edges, face_edge = unique_edges(common.F)
     mid_uv = edge_uv_midpoints(common)
-    # the centre as a mean (the same bits as before the other samples existed), the others weighted
-    face_uv = [common.UV[common.F_uv].mean(axis=1)] + [np.einsum("k,fkc->fc", w, common.UV[common.F_uv])
-                                                        for w in weights[1:]]
+    face_uv = None if tangential_scale is None else inside_faces(common.UV[common.F_uv], face_samples)
     worst = np.zeros(len(edges))
     for name, mesh in meshes.items():
         index = (indices or {}).get(name) or UVIndex(mesh)
@@ -338,8 +341,7 @@ def chord_errors(common: TexturedMesh, meshes: Mapping[str, TexturedMesh] | Sequ
         worst = np.maximum(worst, np.maximum(normal, tangential_scale * tangential))
         length = np.linalg.norm(ends[edges[:, 0]] - ends[edges[:, 1]], axis=1)
         longest = face_edge[np.arange(len(face_edge)), np.argmax(length[face_edge], axis=1)]
-        for k, (w, uv) in enumerate(zip(weights, face_uv)):
-            points = ends[common.F].mean(axis=1) if k == 0 else np.einsum("k,fkc->fc", w, ends[common.F])
+        for uv, points in zip(face_uv, inside_faces(ends[common.F], face_samples)):
             normal, tangential = offsets_at_uv(mesh, index, uv, points)
             np.maximum.at(worst, longest, np.maximum(normal, tangential_scale * tangential))
     return worst
