@@ -10,7 +10,9 @@ It has no antialiasing pass, so the comparison favours it.
 Prints JSON: per configuration the median milliseconds of each path and their ratio.
 With ``--ops``: each fused numba op of the renderer (projection, vertex normals, SH
 irradiance) against the torch expression it replaces, forward + backward.
+With ``--face-order``: the same step with the faces shuffled and in spatial order (``Topology.in_spatial_order``).
 Usage: python benchmarks/bench_render.py [--repeats N] [--faces 16000 64000 250000] [--sizes 256 512] [--cull] [--ops]
+       [--face-order]
 """
 from __future__ import annotations
 
@@ -164,6 +166,9 @@ def main() -> None:
     ap.add_argument("--cull", action="store_true",
                     help="back-face culling, as registration renders its closed template (the ray-cast baseline "
                          "only hits front faces of a closed mesh either way)")
+    ap.add_argument("--face-order", action="store_true",
+                    help="also time the same mesh with its faces shuffled (as a refined registration mesh lists "
+                         "them) and in spatial order (Schedule.face_order: spatial)")
     args = ap.parse_args()
     meshes = head_meshes(args.faces)
     if args.ops:
@@ -189,6 +194,12 @@ def main() -> None:
             row = {"faces": int(len(F0)), "vertices": int(len(V0)), "image": size, "views": 8, "cull_backfaces": args.cull}
             row["gpja_ms"] = round(median_ms(lambda: our_step(V, topo, cams, uv, tex, mask, sh, targets, bg_l1, args.cull),
                                              args.repeats), 1)
+            if args.face_order:
+                shuffled = F0[np.random.default_rng(2).permutation(len(F0))]
+                for name, order_topo in (("shuffled", Topology(torch.from_numpy(shuffled), torch.from_numpy(shuffled))),
+                                         ("spatial", Topology.in_spatial_order(V0, shuffled, shuffled))):
+                    row[f"gpja_{name}_ms"] = round(median_ms(
+                        lambda: our_step(V, order_topo, cams, uv, tex, mask, sh, targets, bg_l1, args.cull), args.repeats), 1)
             if not args.no_baseline:
                 F = torch.from_numpy(F0)
                 row["open3d_plain_torch_ms"] = round(median_ms(lambda: plain_step(V, F, cams, uv, tex, mask, sh, targets), args.repeats), 1)

@@ -23,3 +23,15 @@ def test_register_benchmark_reports_every_kind_of_log_entry():
     assert level_entry(flow) == {"level": "flow2", "vertices": 40, "seconds": 2.0, "rounds": 2}
     untangle = {"stage": "untangle", "seconds": 4.1, "rounds": 17, "folded_before": 3, "folded_after": 0}
     assert level_entry(untangle) == {"level": "untangle", "vertices": None, "seconds": 4.1, "rounds": 17}
+
+
+def test_register_presets_are_schedules_and_paper_fast_only_adds_the_speed_levers():
+    from gpja.register.multiscale import Schedule
+
+    bench = load_benchmark("bench_register")
+    schedules = {name: Schedule.from_config(preset, name) for name, preset in bench.PRESETS.items()}
+    assert schedules["paper"].views_per_iteration is None and schedules["paper"].face_order == "mesh"
+    added = {k: v for k, v in bench.PAPER_FAST.items() if bench.PAPER.get(k) != v}
+    assert set(added) == {"views_per_iteration", "image_factor", "face_order", "average_iterations"}
+    assert schedules["paper-fast"].lambdas == schedules["paper"].lambdas
+    assert schedules["paper-fast"].iterations == schedules["paper"].iterations

@@ -23,6 +23,9 @@ NORMAL_VS_RAYCAST_DEG = 1.0
 TRI_ID_MISMATCH = 1e-3
 #: Relative error of finite-difference vs autograd vertex gradients.
 FD_RELATIVE = 1e-3
+#: A render (values, vertex gradients) with the faces in another order: the same up to the rounding of the
+#: per-vertex sums, relative to the largest value.
+FACE_ORDER_RELATIVE = 1e-5
 
 # --- metrics (geometry) ---
 #: Open3D closest points are float32: at ~100 mm coordinates a point on the surface

@@ -96,7 +96,7 @@ class TemplateSettings:
                                                    "flow_levels", "flow_smoothness", "flow_still_mm", "flow_chroma", "flow_cholesky",
                                                    "color_gradient",
                                                    "average_iterations", "views_per_iteration", "image_factor",
-                                                   "seed", "untangle_iterations", "untangle_rings",
+                                                   "seed", "face_order", "untangle_iterations", "untangle_rings",
                                                    "untangle_turned", "snap_mm", "snap_smoothness")})
     texture_method: str = "fusion"
     texture_size: int = 1024
