@@ -77,7 +77,7 @@ def shared_texture_psnr(mesh, texture: np.ndarray, targets) -> float:
 
 def accuracy_scorer(args, template_dir: Path):
     """A function scoring a registered mesh against the synthetic ground truth (None without one): C.D.
-    (the metrics' L1 Chamfer, mm) and the dense correspondence (median, mean, p95 and the mouth's median,
+    (the metrics' L1 Chamfer, mm) and the dense correspondence (median, mean, p95, the mouth's median and every region's,
     mm). A benchmark may read the ground truth; the registration it times never does."""
     import tempfile
 
@@ -98,10 +98,12 @@ def accuracy_scorer(args, template_dir: Path):
             write_obj(path, mesh, texture_name=None)
             corr = correspondence_error_files(path, template_dir / "template.obj", scans_root, gt_root,
                                               args.subject, args.expression)
-        mouth = (corr.get("regions") or {}).get("mouth") or {}
+        regions = corr.get("regions") or {}
+        medians = {name: None if (r or {}).get("median_mm") is None else round(r["median_mm"], 3)
+                   for name, r in regions.items()}
         return {"chamfer_l1_mm": round(geometry.chamfer_l1_mm, 4),
                 "correspondence_mm": {k: round(corr[k], 3) for k in ("median_mm", "mean_mm", "p95_mm")},
-                "mouth_median_mm": None if mouth.get("median_mm") is None else round(mouth["median_mm"], 3)}
+                "mouth_median_mm": medians.get("mouth"), "region_medians_mm": medians}
 
     return score
 
