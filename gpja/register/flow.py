@@ -272,6 +272,18 @@ def solve_displacement(V: np.ndarray, F: np.ndarray, target: np.ndarray, weight:
     return d
 
 
+def socket_vertices(mesh: TexturedMesh, mask_texture: torch.Tensor) -> np.ndarray:
+    """(n,) bool: the vertices of ``mesh`` whose texture the mouth mask leaves out (the socket, the mouth's
+    interior). ``mask_texture``: (T, T, 1) float mouth mask in [0, 1] (0 = socket). A vertex on a UV seam has
+    several texture coordinates; any one of them tells socket from skin (the last written is sampled)."""
+    from gpja.render import sample_texture
+
+    uv_of_vertex = np.zeros((len(mesh.V), 2))
+    uv_of_vertex[mesh.F.ravel()] = mesh.UV[mesh.F_uv.ravel()]
+    inside = sample_texture(mask_texture.float(), torch.tensor(uv_of_vertex, dtype=torch.float32))[:, 0].numpy()
+    return inside <= 0.5
+
+
 def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.Tensor, mask_texture: torch.Tensor,
                 settings: FlowSettings, render: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The flow targets of ``mesh``'s vertices: target (n, 3) mm (NaN = none) and weight (n,).
@@ -283,7 +295,7 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
     descent left it, and the descent, whose basin is a few pixels, aligns what is left. Large motions (a
     closing jaw, 5-20 mm) are kept as they are.
     """
-    from gpja.render import Topology, render_views, sample_texture, vertex_normals
+    from gpja.render import Topology, render_views, vertex_normals
 
     render = render or render_views
     V = torch.tensor(mesh.V, dtype=torch.float32)
@@ -295,11 +307,8 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
         colour = out.dense("color").double().numpy()
         depth = out.dense("depth").double().numpy()[..., 0]
         normals = vertex_normals(torch.from_numpy(mesh.V), torch.from_numpy(mesh.F)).numpy()
-    # the socket: vertices whose texture is masked out (mouth interior) do not match; a vertex on a UV
-    # seam has several UVs, any one of them tells socket from skin
-    uv_of_vertex = np.zeros((len(mesh.V), 2))
-    uv_of_vertex[mesh.F.ravel()] = mesh.UV[mesh.F_uv.ravel()]
-    use = sample_texture(mask_texture.float(), torch.tensor(uv_of_vertex, dtype=torch.float32))[:, 0].numpy() > 0.5
+    # the socket: vertices whose texture is masked out (mouth interior) do not match
+    use = ~socket_vertices(mesh, mask_texture)
     images = targets.images.double().numpy()
     scan_depth = targets.depth.double().numpy()[..., 0]
     scan_cov = targets.coverage.double().numpy()[..., 0]

@@ -149,6 +149,19 @@ def gap_factor(gap: np.ndarray, gap_mm: tuple[float, float]) -> np.ndarray:
     return np.where(np.isfinite(gap), ramp, 1.0)
 
 
+def mouth_factor(V: np.ndarray, socket: np.ndarray, mouth_mm: tuple[float, float]) -> np.ndarray:
+    """(n,) float64 in [0, 1]: 0 within ``mouth_mm[0]`` mm of the nearest socket vertex, 1 from ``mouth_mm[1]`` mm on,
+    linear between (straight-line distance on the start's positions ``V`` (n, 3) mm; ``socket``: (n,) bool, e.g.
+    :func:`gpja.register.flow.socket_vertices`). 1 everywhere when there is no socket vertex."""
+    free, held = mouth_mm
+    if not np.any(socket):
+        return np.ones(len(V))
+    from scipy.spatial import cKDTree
+
+    distance = cKDTree(np.asarray(V)[socket]).query(np.asarray(V), k=1)[0]
+    return np.clip((distance - free) / (held - free), 0.0, 1.0)
+
+
 @dataclass
 class TangentialHold:
     """The spring of the hold on one mesh's vertices.
@@ -174,15 +187,19 @@ class TangentialHold:
     @classmethod
     def after_first_phase(cls, start: TexturedMesh, moved: TexturedMesh, lam: float, rate: float,
                           moved_mm: tuple[float, float], gap: np.ndarray | None = None,
-                          gap_mm: tuple[float, float] | None = None, spring_rate: float = 0.0) -> "TangentialHold":
+                          gap_mm: tuple[float, float] | None = None, spring_rate: float = 0.0,
+                          factor: np.ndarray | None = None) -> "TangentialHold":
         """The hold of a registration that started at ``start`` and was at ``moved`` after its first phase
         (the warm-up, or without one the first flow stage); with ``gap`` ((n,) mm, :func:`scan_gap` of
-        ``start``) and ``gap_mm``, the weights are also multiplied by :func:`gap_factor`; with
-        ``spring_rate`` > 0, edge springs to ``start``'s edge lengths as well."""
+        ``start``) and ``gap_mm``, the weights are also multiplied by :func:`gap_factor`; with ``factor``
+        ((n,) in [0, 1], e.g. :func:`mouth_factor`), by that too; with ``spring_rate`` > 0, edge springs to
+        ``start``'s edge lengths as well."""
         normals = vertex_normals(torch.from_numpy(start.V), torch.from_numpy(start.F)).numpy()
         weight = hold_weights(start.V, moved.V, start.F, lam, moved_mm)
         if gap is not None and gap_mm is not None:
             weight = weight * gap_factor(gap, gap_mm)
+        if factor is not None:
+            weight = weight * np.asarray(factor, dtype=np.float64)
         return cls(start.V.copy(), normals, weight, float(rate), float(spring_rate), unique_edges(start.F)[0])
 
     @property

@@ -68,7 +68,7 @@ from gpja.cholesky import BACKENDS as CHOLESKY_BACKENDS
 from gpja.errors import GpjaError
 from gpja.mesh import TexturedMesh
 from gpja.register.flow import FlowSettings
-from gpja.register.hold import TangentialHold, scan_gap
+from gpja.register.hold import TangentialHold, mouth_factor, scan_gap
 from gpja.register.hra import COLOR_GRADIENTS, ExpressionTargets, Switches, along_surface, render_constraint
 from gpja.register.largesteps import LargeStepsParametrization
 from gpja.register.remesh import refine_by_factor, refine_carrying
@@ -124,6 +124,11 @@ class Schedule:
             surface's gap to the target's scan (``gpja.register.hold.scan_gap``): kept at or below ``held`` mm,
             0 at or beyond ``free`` mm, so what lies off the scan (a part the expression moves) is free even
             where the first phase hardly moved it.
+        hold_mouth_mm: (free, held) or None (off, the hold as first written): the weights are also multiplied by
+            a ramp on the distance (mm, on the start) to the nearest vertex of the mouth's socket (the template's
+            mouth mask, ``gpja.register.hold.mouth_factor``): 0 within ``free`` mm, 1 from ``held`` mm on. The
+            lips' surroundings (chin, mouth corners, the band between lip and chin) move with every expression
+            of the mouth, even where the first flow stage moved them less than ``hold_moved_mm``.
         spring_rate: per level iteration, the fraction of each edge's length change from the registration's
             start that is given back, along the surface (0 = off, the paper; beyond the paper,
             ``gpja.register.hold.edge_spring_step``): inside a lip of uniform colour it keeps the material's
@@ -188,6 +193,7 @@ class Schedule:
     hold_tangential: float = 0.0
     hold_moved_mm: tuple[float, float] = (0.75, 2.5)
     hold_gap_mm: tuple[float, float] | None = None
+    hold_mouth_mm: tuple[float, float] | None = None
     spring_rate: float = 0.0
     flow_rounds: int = 0
     flow_levels: int = 1
@@ -271,6 +277,10 @@ class Schedule:
         if self.hold_gap_mm is not None and (len(self.hold_gap_mm) != 2
                                              or not 0.0 <= float(self.hold_gap_mm[0]) < float(self.hold_gap_mm[1])):
             raise ValueError(f"hold_gap_mm must be null or two distances 0 <= held < free (mm), got {self.hold_gap_mm}")
+        if self.hold_mouth_mm is not None and (len(self.hold_mouth_mm) != 2
+                                               or not 0.0 <= float(self.hold_mouth_mm[0]) < float(self.hold_mouth_mm[1])):
+            raise ValueError(f"hold_mouth_mm must be null or two distances 0 <= free < held (mm), got "
+                             f"{self.hold_mouth_mm}")
 
     @property
     def holds(self) -> bool:
@@ -404,7 +414,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         before_flow = mesh
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
         if schedule.holds and not warmup:  # the first flow stage tells what moves
-            hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage")
+            hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage", mask_texture)
     if warmup:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
@@ -413,7 +423,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage("warmup", mesh)
         if schedule.holds:
-            hold = start_hold(start_mesh, mesh, schedule, targets, progress, "the warm-up")
+            hold = start_hold(start_mesh, mesh, schedule, targets, progress, "the warm-up", mask_texture)
     elif schedule.holds and hold is None:
         progress("hold and springs: off (no warm-up or flow stage ran to tell moving parts from still ones)")
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
@@ -495,16 +505,27 @@ def untangle_stage(mesh: TexturedMesh, schedule: Schedule, progress: Callable[[s
 
 
 def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, targets: ExpressionTargets,
-               progress: Callable[[str], None], what: str) -> TangentialHold:
+               progress: Callable[[str], None], what: str, mask_texture: torch.Tensor | None = None) -> TangentialHold:
     """The tangential hold (``gpja.register.hold``) of a registration that started at ``start`` and was at
     ``moved`` after its first phase (``what``: the warm-up, or without one the first flow stage); with
-    ``schedule.hold_gap_mm``, gated by ``start``'s gap to the scan of ``targets``."""
+    ``schedule.hold_gap_mm``, gated by ``start``'s gap to the scan of ``targets``; with ``schedule.hold_mouth_mm``,
+    released around the socket of ``mask_texture`` ((T, T, 1) mouth mask, 0 = socket)."""
     gap_mm = None if schedule.hold_gap_mm is None else tuple(schedule.hold_gap_mm)
     gap = None if gap_mm is None else scan_gap(start.V, start.F, targets)
+    mouth = None
+    if schedule.hold_mouth_mm is not None:
+        if mask_texture is None:
+            raise ValueError("hold_mouth_mm needs the template's mouth mask (start_hold's mask_texture)")
+        from gpja.register.flow import socket_vertices
+
+        mouth = mouth_factor(start.V, socket_vertices(start, mask_texture), tuple(schedule.hold_mouth_mm))
     hold = TangentialHold.after_first_phase(start, moved, schedule.lambdas[0], schedule.hold_tangential,
-                                            tuple(schedule.hold_moved_mm), gap, gap_mm, schedule.spring_rate)
+                                            tuple(schedule.hold_moved_mm), gap, gap_mm, schedule.spring_rate, mouth)
     gated = "" if gap is None else (f"; free beyond {gap_mm[1]:g} mm off the scan: {np.mean(gap > gap_mm[1]):.0%} "
                                     "of the vertices")
+    if mouth is not None:
+        gated += (f"; free within {schedule.hold_mouth_mm[0]:g} mm of the mouth's socket: {np.mean(mouth == 0):.0%} "
+                  "of the vertices")
     if schedule.hold_tangential > 0:
         progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
                  f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in {what}{gated})")

@@ -220,6 +220,20 @@ def test_the_mouth_socket_is_not_matched():
     assert not np.isfinite(masked).any()
 
 
+def test_socket_vertices_are_those_whose_texel_the_mask_leaves_out():
+    """Two triangles side by side, their UVs on the left and right halves of a mask whose left half is 0."""
+    from gpja.register.flow import socket_vertices
+
+    V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [5.0, 0.0, 0.0], [6.0, 0.0, 0.0], [5.0, 1.0, 0.0]])
+    F = np.array([[0, 1, 2], [3, 4, 5]])
+    UV = np.array([[0.1, 0.2], [0.2, 0.2], [0.1, 0.8], [0.8, 0.2], [0.9, 0.2], [0.8, 0.8]])
+    mesh = TexturedMesh(V, F, UV, F.copy())
+    mask = torch.ones(8, 8, 1)
+    mask[:, :4] = 0.0  # columns u < 0.5: the socket
+    np.testing.assert_array_equal(socket_vertices(mesh, mask), [True, True, True, False, False, False])
+    assert not socket_vertices(mesh, torch.ones(8, 8, 1)).any()
+
+
 def test_a_match_smaller_than_still_mm_holds_its_vertex_and_a_large_one_is_kept():
     """``still_mm``: the sphere turned 0.5 degrees (0.5 mm at the front) gives matches under 1 mm, which become
     the vertices themselves; the 16-degree turn's matches (~17 mm) are the same with and without it."""

@@ -5,7 +5,7 @@ import torch
 
 from gpja.mesh import TexturedMesh, unique_edges
 from gpja.camera import Camera
-from gpja.register.hold import TangentialHold, edge_spring_step, gap_factor, hold_weights, scan_gap
+from gpja.register.hold import TangentialHold, edge_spring_step, gap_factor, hold_weights, mouth_factor, scan_gap
 from gpja.register.hra import ExpressionTargets
 from gpja.register.largesteps import LargeStepsParametrization
 from gpja.register.multiscale import Schedule
@@ -143,6 +143,30 @@ def test_a_gated_hold_frees_the_vertices_off_the_scan():
                                   plain.weight)
 
 
+def test_the_mouth_factor_ramps_with_the_distance_to_the_nearest_socket_vertex():
+    V = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 12.0, 0.0], [0.0, 0.0, 30.0], [-20.0, 0.0, 0.0]])
+    socket = np.array([True, False, False, False, False])
+    # 0 within 10 mm, 1 from 20 mm on, linear between: distances 0, 5, 12, 30, 20
+    np.testing.assert_allclose(mouth_factor(V, socket, (10.0, 20.0)), [0.0, 0.0, 0.2, 1.0, 1.0], atol=EXACT)
+    socket[3] = True  # the nearest socket vertex counts: vertex 3 is now in the socket
+    np.testing.assert_allclose(mouth_factor(V, socket, (10.0, 20.0)), [0.0, 0.0, 0.2, 0.0, 1.0], atol=EXACT)
+    np.testing.assert_array_equal(mouth_factor(V, np.zeros(5, dtype=bool), (10.0, 20.0)), 1.0)  # no socket: no release
+
+
+def test_a_hold_released_around_the_mouth_multiplies_its_weights():
+    mesh = grid(8)
+    factor = mouth_factor(mesh.V, mesh.V[:, 0] == 0.0, (2.0, 6.0))  # the left column is the "socket"
+    plain = TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5))
+    released = TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5), factor=factor)
+    np.testing.assert_allclose(released.weight, plain.weight * factor, atol=EXACT)
+    assert released.weight[mesh.V[:, 0] <= 2.0].max() == 0.0 and released.weight[mesh.V[:, 0] >= 6.0].min() == 1.0
+    # a released vertex is not pulled back, a held one is
+    moved = torch.from_numpy(mesh.V + np.array([1.0, 0.0, 0.0]))
+    dx = released.correction(moved).numpy()
+    np.testing.assert_allclose(dx[mesh.V[:, 0] <= 2.0], 0.0, atol=EXACT)
+    np.testing.assert_allclose(dx[mesh.V[:, 0] >= 6.0], [[-0.1, 0.0, 0.0]] * int((mesh.V[:, 0] >= 6.0).sum()), atol=EXACT)
+
+
 def test_one_stretched_edge_gets_its_rest_length_back_in_one_full_step():
     rest = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
     x = torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]], dtype=torch.float64)
@@ -194,7 +218,8 @@ def test_schedule_refuses_bad_springs(bad):
 
 @pytest.mark.parametrize("bad", [{"hold_tangential": -0.1}, {"hold_tangential": 1.0},
                                  {"hold_moved_mm": (2.0, 1.0)}, {"hold_moved_mm": (1.0,)},
-                                 {"hold_gap_mm": (2.0, 0.5)}, {"hold_gap_mm": (1.0,)}, {"hold_gap_mm": (-1.0, 1.0)}])
+                                 {"hold_gap_mm": (2.0, 0.5)}, {"hold_gap_mm": (1.0,)}, {"hold_gap_mm": (-1.0, 1.0)},
+                                 {"hold_mouth_mm": (20.0, 10.0)}, {"hold_mouth_mm": (10.0,)}, {"hold_mouth_mm": (-1.0, 5.0)}])
 def test_schedule_refuses_a_bad_hold(bad):
     with pytest.raises(ValueError, match="hold"):
         Schedule(lambdas=(10.0,), iterations=(1,), **bad)
