@@ -136,6 +136,11 @@ class Schedule:
         flow_rounds: rounds of optical-flow matching (``gpja.register.flow``) before a level's descent
             (0 = none, the paper; beyond the paper). Only runs when the colour constraint is on.
         flow_levels: how many levels, from the first, start with those rounds.
+        jaw_search_deg: (lo, hi) or None (off, the paper): before the first flow stage, the lower face is
+            turned about a hinge to the pitch angle in [lo, hi] degrees (0 = the start's pose, negative closes)
+            whose render best matches the references (beyond the paper, ``gpja.register.jaw``). When it turns,
+            the hold keeps the turned jaw and releases the rig's blend between jaw and skull. Only runs when the
+            colour constraint is on.
         flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
         flow_still_mm: a flow match that moves its vertex less than this is taken as "stays" (0 = off, the
             stage as first written; ``gpja.register.flow.match_round``).
@@ -197,6 +202,7 @@ class Schedule:
     spring_rate: float = 0.0
     flow_rounds: int = 0
     flow_levels: int = 1
+    jaw_search_deg: tuple[float, float] | None = None
     flow_smoothness: float = FlowSettings.smoothness
     flow_still_mm: float = FlowSettings.still_mm
     flow_chroma: float = FlowSettings.chroma
@@ -281,6 +287,11 @@ class Schedule:
                                                or not 0.0 <= float(self.hold_mouth_mm[0]) < float(self.hold_mouth_mm[1])):
             raise ValueError(f"hold_mouth_mm must be null or two distances 0 <= free < held (mm), got "
                              f"{self.hold_mouth_mm}")
+        if self.jaw_search_deg is not None and (len(self.jaw_search_deg) != 2
+                                                or not -90.0 <= float(self.jaw_search_deg[0]) <= 0.0
+                                                <= float(self.jaw_search_deg[1]) <= 90.0):
+            raise ValueError(f"jaw_search_deg must be null or two angles -90 <= lo <= 0 <= hi <= 90 (degrees), got "
+                             f"{self.jaw_search_deg}")
 
     @property
     def holds(self) -> bool:
@@ -410,11 +421,14 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     # the flow stage matches the render's colours: without the colour constraint there is none
     flow_levels = int(schedule.flow_levels) if schedule.flow_rounds and switches.color else 0
     warmup = bool(schedule.warmup_iterations and switches.color)
+    release = None  # the hold's release where the jaw search's rig blends jaw and skull
+    if schedule.jaw_search_deg is not None and switches.color:
+        mesh, release = jaw_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage)
     if flow_levels:
         before_flow = mesh
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
         if schedule.holds and not warmup:  # the first flow stage tells what moves
-            hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage", mask_texture)
+            hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage", mask_texture, release)
     if warmup:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
@@ -423,7 +437,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if on_stage is not None:
             on_stage("warmup", mesh)
         if schedule.holds:
-            hold = start_hold(start_mesh, mesh, schedule, targets, progress, "the warm-up", mask_texture)
+            hold = start_hold(start_mesh, mesh, schedule, targets, progress, "the warm-up", mask_texture, release)
     elif schedule.holds and hold is None:
         progress("hold and springs: off (no warm-up or flow stage ran to tell moving parts from still ones)")
     for level, (lam, n_iter) in enumerate(zip(schedule.lambdas, schedule.iterations)):
@@ -505,11 +519,13 @@ def untangle_stage(mesh: TexturedMesh, schedule: Schedule, progress: Callable[[s
 
 
 def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, targets: ExpressionTargets,
-               progress: Callable[[str], None], what: str, mask_texture: torch.Tensor | None = None) -> TangentialHold:
+               progress: Callable[[str], None], what: str, mask_texture: torch.Tensor | None = None,
+               release: np.ndarray | None = None) -> TangentialHold:
     """The tangential hold (``gpja.register.hold``) of a registration that started at ``start`` and was at
     ``moved`` after its first phase (``what``: the warm-up, or without one the first flow stage); with
     ``schedule.hold_gap_mm``, gated by ``start``'s gap to the scan of ``targets``; with ``schedule.hold_mouth_mm``,
-    released around the socket of ``mask_texture`` ((T, T, 1) mouth mask, 0 = socket)."""
+    released around the socket of ``mask_texture`` ((T, T, 1) mouth mask, 0 = socket); ``release``: (n,) factor
+    in [0, 1] the weights are also multiplied by (the jaw search's, :func:`gpja.register.jaw.blend_release`)."""
     gap_mm = None if schedule.hold_gap_mm is None else tuple(schedule.hold_gap_mm)
     gap = None if gap_mm is None else scan_gap(start.V, start.F, targets)
     mouth = None
@@ -519,19 +535,37 @@ def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, tar
         from gpja.register.flow import socket_vertices
 
         mouth = mouth_factor(start.V, socket_vertices(start, mask_texture), tuple(schedule.hold_mouth_mm))
+    if release is not None:
+        mouth = release if mouth is None else mouth * release
     hold = TangentialHold.after_first_phase(start, moved, schedule.lambdas[0], schedule.hold_tangential,
                                             tuple(schedule.hold_moved_mm), gap, gap_mm, schedule.spring_rate, mouth)
     gated = "" if gap is None else (f"; free beyond {gap_mm[1]:g} mm off the scan: {np.mean(gap > gap_mm[1]):.0%} "
                                     "of the vertices")
-    if mouth is not None:
+    if schedule.hold_mouth_mm is not None:
         gated += (f"; free within {schedule.hold_mouth_mm[0]:g} mm of the mouth's socket: {np.mean(mouth == 0):.0%} "
                   "of the vertices")
+    if release is not None:
+        gated += f"; free where the jaw's turn is blended: {np.mean(release == 0):.0%} of the vertices"
     if schedule.hold_tangential > 0:
         progress(f"hold: {hold.held_fraction:.0%} of the vertices held tangentially "
                  f"(moved < {schedule.hold_moved_mm[0]:g}-{schedule.hold_moved_mm[1]:g} mm in {what}{gated})")
     if schedule.spring_rate > 0:
         progress(f"springs: {len(hold.edges)} edges kept at the start's lengths, rate {schedule.spring_rate:g}")
     return hold
+
+
+def jaw_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,
+              mask_texture: torch.Tensor, render, progress: Callable[[str], None], log: RegistrationLog,
+              on_stage: Callable[[str, TexturedMesh], None] | None) -> tuple[TexturedMesh, np.ndarray | None]:
+    """The jaw search (``gpja.register.jaw``), logged and saved as stage ``jaw``; returns the turned mesh and, when
+    it turned, the hold's release (:func:`gpja.register.jaw.blend_release`; None when the jaw stayed)."""
+    from gpja.register.jaw import blend_release, search_jaw
+
+    mesh, entry, rig = search_jaw(mesh, targets, texture, mask_texture, tuple(schedule.jaw_search_deg), render, progress)
+    log.levels.append(entry)
+    if on_stage is not None:
+        on_stage("jaw", mesh)
+    return mesh, (blend_release(rig.weight) if entry["pitch_deg"] != 0.0 else None)
 
 
 def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,

@@ -1,0 +1,241 @@
+"""The jaw search (beyond the paper, ``Schedule.jaw_search_deg``): turn the lower face about a hinge before the flow.
+
+Why (docs/experiments.md, "The jaw searched before the flow stage"): from a start whose mouth is open
+(the template, ``3_mouth_stretch``) or half open (a lip funneler), a closed mouth needs the lower lip and
+chin to travel 5-25 mm. The optical flow of the first flow stage (:mod:`gpja.register.flow`) does not
+follow that motion: the socket's dark pixels vanish between render and reference, the lower lip's
+luminance hardly differs from the skin, and the flow fills the chin, which has little texture, smoothly
+between the lips and the still neck. Its matches put the chin's bottom 1-6 mm too low and the band under
+the lower lip 1-3 mm too high, and no later stage takes that back. A jaw is one degree of freedom of a
+head's lower face, and one number can be found by search where a descent does not (its colour loss
+is a few percent deep over 20 degrees): the stage scores the render against the references at a grid
+of pitch angles and keeps the best. The flow then starts with a few millimetres left to find.
+
+The rig comes from the template's design, not from data: the mouth mask marks the socket, whose rim is
+the lips' inner edge; the jaw is what lies below the mouth slit, fading out towards the ears and down
+the neck in proportions of the head's own depth (:func:`jaw_weights`). A pose blends one rigid motion
+into the vertices by their weights: ``x' = x + w (R (x - p) + p - x)`` (:func:`pose_jaw`).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+
+from gpja.errors import InputError
+from gpja.mesh import TexturedMesh
+
+#: Proportions of the jaw region, as fractions of the head's depth ``L`` (front of the face to the back of
+#: the skull, mm). Anatomical rules of thumb: the mandible's ramus stands in front of the ear, about half
+#: the head's depth behind the face; the chin's underside ends about a quarter of it below the mouth, and
+#: the soft tissue under it follows the jaw part of the way to the hyoid.
+JAW_BACK_FADE = (0.65, 0.40)      # weight 0 at 0.65 L behind the face front, 1 at 0.40 L
+JAW_NECK_FADE = (0.45, 0.25)      # weight 0 at 0.45 L below the mouth, 1 at 0.25 L
+JAW_CHEEK_WIDEN = 0.15            # the slit's split widens over 0.15 L beyond the mouth corners
+JAW_SPLIT_MM = (3.0, 15.0)        # width (mm) of the split between the lips, and its growth at the cheeks
+JAW_PIVOT = (0.50, 0.10)          # hinge: 0.50 L behind the face front, 0.10 L above the mouth
+#: the search's coarse and fine steps (degrees): the coarse grid brackets the minimum, the fine one
+#: (within a coarse step of it) places it
+COARSE_STEP_DEG = 2.5
+FINE_STEP_DEG = 0.5
+#: the jaw turns only when the best pose's score is at least this fraction below the start's: a turn that
+#: explains the images no better than the start is noise (a flat score, an expression that keeps the jaw)
+MIN_GAIN = 0.01
+#: the rig's blend between the jaw (weight 1) and the still skull (0) is a guess about soft tissue; the
+#: hold (:mod:`gpja.register.hold`) releases the vertices whose weight lies strictly between these
+BLEND_RELEASE = (0.05, 0.95)
+#: the references are compared at this fraction of their resolution (the score is a sum over the face;
+#: the chin's travel is tens of pixels at full size)
+SEARCH_IMAGE_FACTOR = 2
+
+
+def smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
+    """Cubic Hermite step: 0 at ``e0``, 1 at ``e1`` (``e0 > e1`` gives a falling step)."""
+    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def socket_rim(F: np.ndarray, socket: np.ndarray) -> np.ndarray:
+    """(k,) int64 socket vertices that share a face with a vertex outside it: the lips' inner edge.
+
+    Args:
+        F: (m, 3) int faces. socket: (n,) bool (:func:`gpja.register.flow.socket_vertices`).
+    Raises:
+        InputError: no socket, or a rim of fewer than 4 vertices (no mouth to hinge).
+    """
+    if not socket.any() or socket.all():
+        raise InputError("mouth mask", "marks no mouth socket on the template: the jaw search needs one")
+    inside = socket[F]
+    mixed = inside.any(1) & ~inside.all(1)
+    rim = np.zeros(len(socket), dtype=bool)
+    rim[F[mixed].ravel()] = True
+    rim = np.flatnonzero(rim & socket)
+    if len(rim) < 4:
+        raise InputError("mouth mask", f"the mouth socket's rim has {len(rim)} vertices: no lips to hinge")
+    return rim
+
+
+@dataclass(frozen=True)
+class JawRig:
+    """Where the jaw is on one mesh.
+
+    Attributes:
+        weight: (n,) float64 in [0, 1], 1 on the lower lip, chin and jaw, 0 above the mouth and behind.
+        pivot: (3,) float64 hinge point, mm.
+    """
+
+    weight: np.ndarray
+    pivot: np.ndarray
+
+
+def jaw_weights(V: np.ndarray, socket: np.ndarray, rim: np.ndarray) -> JawRig:
+    """The jaw's per-vertex weight and hinge on a head in the canonical frame (module docstring).
+
+    Args:
+        V: (n, 3) float64 positions, mm, +Y up, +Z forward.
+        socket: (n,) bool mouth-socket vertices; rim: (k,) int64 its rim (:func:`socket_rim`).
+    Raises:
+        InputError: no depth behind the mouth (not a head in the canonical frame).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    lips = V[rim]
+    mouth = lips.mean(axis=0)
+    half_width = float(np.percentile(np.abs(lips[:, 0] - mouth[0]), 98))
+    front = float(V[:, 2].max())
+    upper = V[(V[:, 1] > mouth[1]) & ~socket]
+    depth = front - float(np.percentile(upper[:, 2] if len(upper) else V[:, 2], 1))
+    if not depth > 0:
+        raise InputError("template", "has no depth behind the mouth: not a head in the canonical frame")
+    x, y, z = V[:, 0] - mouth[0], V[:, 1], V[:, 2]
+    width = JAW_SPLIT_MM[0] + JAW_SPLIT_MM[1] * smoothstep(half_width, half_width + JAW_CHEEK_WIDEN * depth, np.abs(x))
+    below = smoothstep(-0.5, 0.5, (mouth[1] - y) / width)
+    back = smoothstep(front - JAW_BACK_FADE[0] * depth, front - JAW_BACK_FADE[1] * depth, z)
+    neck = smoothstep(mouth[1] - JAW_NECK_FADE[0] * depth, mouth[1] - JAW_NECK_FADE[1] * depth, y)
+    # the socket's walls have no neck or back to fade to: their lower wall follows the jaw whole
+    weight = np.where(socket, below, below * back * neck)
+    pivot = np.array([mouth[0], mouth[1] + JAW_PIVOT[1] * depth, front - JAW_PIVOT[0] * depth])
+    return JawRig(weight, pivot)
+
+
+def pitch_matrix(degrees: float) -> np.ndarray:
+    """(3, 3) rotation by ``degrees`` about +X, which turns +Y towards +Z. On a head facing +Z with the hinge
+    behind and above the mouth, a negative angle swings the chin forward and up: it closes the jaw."""
+    a = np.radians(degrees)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def pose_jaw(V: np.ndarray, rig: JawRig, degrees: float) -> np.ndarray:
+    """(n, 3) ``V + w (R (V - p) + p - V)``: the jaw of ``V`` (n, 3) mm turned by ``degrees`` about the rig's
+    hinge (x axis), blended by its weights."""
+    moved = (V - rig.pivot) @ pitch_matrix(degrees).T + rig.pivot
+    return V + rig.weight[:, None] * (moved - V)
+
+
+def unpose_jaw(V: np.ndarray, rig: JawRig, degrees: float) -> np.ndarray:
+    """The inverse of :func:`pose_jaw` where the weight is 0 or 1 (a blend has no closed-form inverse elsewhere)."""
+    back = (V - rig.pivot) @ pitch_matrix(degrees) + rig.pivot
+    return V + rig.weight[:, None] * (back - V)
+
+
+def search_grid(lo: float, hi: float, score: Callable[[float], float]) -> tuple[float, list[tuple[float, float]]]:
+    """The angle in [``lo``, ``hi``] (degrees) of the lowest ``score``: a coarse grid (``COARSE_STEP_DEG``, both
+    ends included), then a fine one within a coarse step of its best. Returns the angle and every (angle,
+    score) tried, in order. Ties go to the angle nearest 0 (no motion)."""
+    tried: dict[float, float] = {}
+
+    def best_of(angles: np.ndarray) -> float:
+        for a in angles:
+            a = round(float(a), 6)
+            if a not in tried:
+                tried[a] = float(score(a))
+        return min(tried, key=lambda a: (tried[a], abs(a)))
+
+    coarse = np.unique(np.append(np.arange(lo, hi, COARSE_STEP_DEG), hi))
+    b = best_of(coarse)
+    fine = np.arange(max(lo, b - COARSE_STEP_DEG), min(hi, b + COARSE_STEP_DEG) + 1e-9, FINE_STEP_DEG)
+    b = best_of(fine)
+    return b, list(tried.items())
+
+
+def colour_score(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture: torch.Tensor,
+                 render: Callable | None = None) -> Callable[[np.ndarray], float]:
+    """``score(V)``: the mean absolute colour difference between ``mesh`` with vertices ``V`` (n, 3) mm, rendered
+    with the shared texture under the capture's lighting, and the references, over every pixel of every view.
+
+    The reference counts only where the scan covers it (the head, not the backdrop), and the mean is over the
+    whole image, a fixed denominator: a pose that turns the chin out of the render pays for the uncovered
+    reference instead of leaving the sum (the escape of a loss normalised by the render's coverage).
+    """
+    from gpja.render import Topology, render_views
+
+    render = render or render_views
+    small = targets.downsampled(SEARCH_IMAGE_FACTOR)
+    reference = small.images * small.coverage.clamp(0.0, 1.0)
+    topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
+    uv = torch.tensor(mesh.UV, dtype=torch.float32)
+
+    def score(V: np.ndarray) -> float:
+        with torch.no_grad():
+            out = render(torch.tensor(V, dtype=torch.float32), topo, small.cameras, ("color",), uv=uv,
+                         texture=texture, mask_texture=mask_texture, sh=small.sh, cull_backfaces=True)
+            return float((out.dense("color") - reference).abs().mean())
+
+    return score
+
+
+def blend_release(weight: np.ndarray) -> np.ndarray:
+    """(n,) float64 factor of the hold's weights after a turn: 0 where the rig's ``weight`` (n,) blends the jaw
+    into the skull (strictly inside ``BLEND_RELEASE``), 1 where the vertex turned rigidly or not at all.
+
+    Why: the hold pulls what the first flow stage did not move back to where the registration started, which
+    after a turn is the turned mesh. Where the weight is 1 that keeps a rigid jaw (the lower lip and chin, which
+    the flow does not follow); where it is 0 the start; in between the blend, a guess about the cheeks and the
+    skin under the chin that the data should correct rather than the hold keep."""
+    weight = np.asarray(weight, dtype=np.float64)
+    return np.where((weight > BLEND_RELEASE[0]) & (weight < BLEND_RELEASE[1]), 0.0, 1.0)
+
+
+def search_jaw(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture: torch.Tensor,
+               range_deg: tuple[float, float], render: Callable | None = None,
+               progress: Callable[[str], None] = print) -> tuple[TexturedMesh, dict, JawRig]:
+    """Turn ``mesh``'s jaw to the pitch in ``range_deg`` whose render best matches the references, when it matches
+    them at least ``MIN_GAIN`` better than the start (else the start stays, pitch 0).
+
+    Args:
+        mesh: the start (template topology, mm, canonical frame) with UVs.
+        targets: the expression's :class:`~gpja.register.hra.ExpressionTargets`.
+        texture: (T, T, 3) shared albedo; mask_texture: (T', T', 1) mouth mask (0 = socket).
+        range_deg: (lo, hi) pitch angles searched, degrees (0 = the start's pose; negative closes).
+    Returns:
+        the posed mesh, a log entry (the angle, the score at it and at 0, every angle tried, seconds) and the rig.
+    Raises:
+        InputError: the mask marks no socket (:func:`socket_rim`).
+    """
+    from gpja.register.flow import socket_vertices
+
+    start = time.perf_counter()
+    socket = socket_vertices(mesh, mask_texture)
+    rig = jaw_weights(mesh.V, socket, socket_rim(mesh.F, socket))
+    score_of = colour_score(mesh, targets, texture, mask_texture, render)
+    best, tried = search_grid(float(range_deg[0]), float(range_deg[1]), lambda a: score_of(pose_jaw(mesh.V, rig, a)))
+    scores = dict(tried)
+    at_zero = scores[0.0] if 0.0 in scores else score_of(mesh.V)
+    found = best
+    if scores[best] > (1.0 - MIN_GAIN) * at_zero:
+        best = 0.0
+    entry = {"stage": "jaw", "pitch_deg": best, "best_pitch_deg": found, "score": round(scores.get(best, at_zero), 6),
+             "score_at_start": round(at_zero, 6),
+             "tried": [[a, round(s, 6)] for a, s in tried], "pivot_mm": rig.pivot.round(3).tolist(),
+             "jaw_fraction": round(float(np.mean(rig.weight > 0.5)), 4), "vertices": int(len(mesh.V)),
+             "seconds": round(time.perf_counter() - start, 3)}
+    if best == 0.0:
+        progress(f"jaw: stays (the best turn, {found:+.1f} deg, matches the images {1 - scores[found] / at_zero:.1%} "
+                 f"better, under {MIN_GAIN:.0%}; {len(tried)} poses, {entry['seconds']:.1f} s)")
+        return mesh, entry, rig
+    progress(f"jaw: turned {best:+.1f} deg about the hinge (colour {at_zero:.5f} -> {scores[best]:.5f}; "
+             f"{len(tried)} poses, {entry['seconds']:.1f} s)")
+    return mesh.with_vertices(pose_jaw(mesh.V, rig, best)), entry, rig
