@@ -47,6 +47,9 @@ MIN_GAIN = 0.01
 #: the rig's blend between the jaw (weight 1) and the still skull (0) is a guess about soft tissue; the
 #: hold (:mod:`gpja.register.hold`) releases the vertices whose weight lies strictly between these
 BLEND_RELEASE = (0.05, 0.95)
+#: the lips' own closing (``search_jaw``'s ``lips_mm``): a lip moves whole within the first distance (mm) of the
+#: socket's rim and not at all beyond the second, the lower lip with the jaw's side, the upper with the skull's
+LIP_FADE_MM = (6.0, 16.0)
 #: the references are compared at this fraction of their resolution (the score is a sum over the face;
 #: the chin's travel is tens of pixels at full size)
 SEARCH_IMAGE_FACTOR = 2
@@ -135,6 +138,23 @@ def pose_jaw(V: np.ndarray, rig: JawRig, degrees: float) -> np.ndarray:
     return V + rig.weight[:, None] * (moved - V)
 
 
+def lip_weights(V: np.ndarray, rim: np.ndarray, rig: JawRig) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) float64 weights in [0, 1] of the lower and the upper lip: the vertices near the socket's ``rim`` (k,)
+    (``LIP_FADE_MM``), split by the rig's jaw weight (the lower lip is the jaw's side of the slit)."""
+    from scipy.spatial import cKDTree
+
+    distance = cKDTree(np.asarray(V, dtype=np.float64)[rim]).query(V)[0]
+    near = smoothstep(LIP_FADE_MM[1], LIP_FADE_MM[0], distance)
+    return rig.weight * near, (1.0 - rig.weight) * near
+
+
+def lift(V: np.ndarray, weight: np.ndarray, mm: float) -> np.ndarray:
+    """(n, 3) ``V`` moved by ``mm`` along +Y (up in the canonical frame), scaled by ``weight`` (n,)."""
+    out = np.array(V, dtype=np.float64)
+    out[:, 1] += weight * mm
+    return out
+
+
 def unpose_jaw(V: np.ndarray, rig: JawRig, degrees: float) -> np.ndarray:
     """The inverse of :func:`pose_jaw` where the weight is 0 or 1 (a blend has no closed-form inverse elsewhere)."""
     back = (V - rig.pivot) @ pitch_matrix(degrees) + rig.pivot
@@ -201,7 +221,8 @@ def blend_release(weight: np.ndarray) -> np.ndarray:
 
 def search_jaw(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture: torch.Tensor,
                range_deg: tuple[float, float], render: Callable | None = None,
-               progress: Callable[[str], None] = print) -> tuple[TexturedMesh, dict, JawRig]:
+               progress: Callable[[str], None] = print,
+               lips_mm: tuple[float, float] | None = None) -> tuple[TexturedMesh, dict, JawRig]:
     """Turn ``mesh``'s jaw to the pitch in ``range_deg`` whose render best matches the references, when it matches
     them at least ``MIN_GAIN`` better than the start (else the start stays, pitch 0).
 
@@ -210,6 +231,9 @@ def search_jaw(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture:
         targets: the expression's :class:`~gpja.register.hra.ExpressionTargets`.
         texture: (T, T, 3) shared albedo; mask_texture: (T', T', 1) mouth mask (0 = socket).
         range_deg: (lo, hi) pitch angles searched, degrees (0 = the start's pose; negative closes).
+        lips_mm: (lo, hi) or None: after a turn, the lower lip's lift and then the upper lip's (mm along +Y,
+            :func:`lip_weights`) are searched in this range too, each by the same grid (the lips' own closing,
+            which the flow stage cannot see either); None = the turn alone.
     Returns:
         the posed mesh, a log entry (the angle, the score at it and at 0, every angle tried, seconds) and the rig.
     Raises:
@@ -236,6 +260,19 @@ def search_jaw(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture:
         progress(f"jaw: stays (the best turn, {found:+.1f} deg, matches the images {1 - scores[found] / at_zero:.1%} "
                  f"better, under {MIN_GAIN:.0%}; {len(tried)} poses, {entry['seconds']:.1f} s)")
         return mesh, entry, rig
-    progress(f"jaw: turned {best:+.1f} deg about the hinge (colour {at_zero:.5f} -> {scores[best]:.5f}; "
-             f"{len(tried)} poses, {entry['seconds']:.1f} s)")
-    return mesh.with_vertices(pose_jaw(mesh.V, rig, best)), entry, rig
+    V = pose_jaw(mesh.V, rig, best)
+    final = scores[best]
+    if lips_mm is not None:
+        lower, upper = lip_weights(mesh.V, socket_rim(mesh.F, socket), rig)
+        for name, weight in (("lower_lip_mm", lower), ("upper_lip_mm", upper)):
+            moved, tried_lip = search_grid(float(lips_mm[0]), float(lips_mm[1]), lambda t: score_of(lift(V, weight, t)))
+            V = lift(V, weight, moved)
+            final = dict(tried_lip)[moved]
+            entry[name] = moved
+            entry[name.replace("_mm", "_tried")] = [[a, round(s, 6)] for a, s in tried_lip]
+        entry["score"] = round(final, 6)
+    entry["seconds"] = round(time.perf_counter() - start, 3)
+    lips = "" if lips_mm is None else f", lips {entry['lower_lip_mm']:+.1f} / {entry['upper_lip_mm']:+.1f} mm"
+    progress(f"jaw: turned {best:+.1f} deg about the hinge{lips} (colour {at_zero:.5f} -> {final:.5f}; "
+             f"{entry['seconds']:.1f} s)")
+    return mesh.with_vertices(V), entry, rig

@@ -141,6 +141,8 @@ class Schedule:
             whose render best matches the references (beyond the paper, ``gpja.register.jaw``). When it turns,
             the hold keeps the turned jaw and releases the rig's blend between jaw and skull. Only runs when the
             colour constraint is on.
+        jaw_lips_mm: (lo, hi) or None (off): after a turn, the lower and then the upper lip are also moved up or
+            down by the lift in [lo, hi] mm that matches the references best (``gpja.register.jaw.lip_weights``).
         flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
         flow_still_mm: a flow match that moves its vertex less than this is taken as "stays" (0 = off, the
             stage as first written; ``gpja.register.flow.match_round``).
@@ -203,6 +205,7 @@ class Schedule:
     flow_rounds: int = 0
     flow_levels: int = 1
     jaw_search_deg: tuple[float, float] | None = None
+    jaw_lips_mm: tuple[float, float] | None = None
     flow_smoothness: float = FlowSettings.smoothness
     flow_still_mm: float = FlowSettings.still_mm
     flow_chroma: float = FlowSettings.chroma
@@ -292,6 +295,11 @@ class Schedule:
                                                 <= float(self.jaw_search_deg[1]) <= 90.0):
             raise ValueError(f"jaw_search_deg must be null or two angles -90 <= lo <= 0 <= hi <= 90 (degrees), got "
                              f"{self.jaw_search_deg}")
+        if self.jaw_lips_mm is not None and (len(self.jaw_lips_mm) != 2
+                                             or not -30.0 <= float(self.jaw_lips_mm[0]) <= 0.0
+                                             <= float(self.jaw_lips_mm[1]) <= 30.0):
+            raise ValueError(f"jaw_lips_mm must be null or two lifts -30 <= lo <= 0 <= hi <= 30 (mm), got "
+                             f"{self.jaw_lips_mm}")
 
     @property
     def holds(self) -> bool:
@@ -561,7 +569,9 @@ def jaw_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule
     it turned, the hold's release (:func:`gpja.register.jaw.blend_release`; None when the jaw stayed)."""
     from gpja.register.jaw import blend_release, search_jaw
 
-    mesh, entry, rig = search_jaw(mesh, targets, texture, mask_texture, tuple(schedule.jaw_search_deg), render, progress)
+    lips = None if schedule.jaw_lips_mm is None else tuple(schedule.jaw_lips_mm)
+    mesh, entry, rig = search_jaw(mesh, targets, texture, mask_texture, tuple(schedule.jaw_search_deg), render, progress,
+                                  lips_mm=lips)
     log.levels.append(entry)
     if on_stage is not None:
         on_stage("jaw", mesh)

@@ -6,8 +6,8 @@ import torch
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh
 from gpja.register.flow import socket_vertices
-from gpja.register.jaw import (FINE_STEP_DEG, jaw_weights, pitch_matrix, pose_jaw, search_grid, search_jaw, socket_rim,
-                               unpose_jaw)
+from gpja.register.jaw import (FINE_STEP_DEG, jaw_weights, lift, lip_weights, pitch_matrix, pose_jaw, search_grid,
+                               search_jaw, socket_rim, unpose_jaw)
 from gpja.register.multiscale import Schedule
 
 #: float64 identities (rotations, rigid round trips), mm.
@@ -90,29 +90,66 @@ def test_the_grid_search_finds_a_minimum_to_its_fine_step_and_prefers_no_motion_
     assert best == 10.0
 
 
-def test_the_search_recovers_a_jaw_turned_in_the_references(rig, small_bust):
-    """References rendered from the bust with its jaw turned -10 degrees; the search starts from the bust."""
+def turned_scene(rig, small_bust, degrees, lower_mm=0.0):
+    """References rendered from the bust with its jaw turned ``degrees`` and its lower lip lifted ``lower_mm``; returns
+    the bust placed at the origin (the start), the turned positions, the targets, the texture and the mask."""
     from gpja.lighting import uniform_sh
     from gpja.register.hra import ExpressionTargets
     from gpja.render import Topology, render_views
     from tests.render.scenes import ring_cameras
 
-    _, _, jaw = rig
+    _, rim, jaw = rig
     mesh = small_bust.mesh
     texture = torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0))
     mask = torch.tensor(small_bust.mouth_mask(256))[..., None]
     cameras, sh = ring_cameras(3, 128), torch.tensor(uniform_sh(), dtype=torch.float32)
     centre = mesh.V.mean(0)
     placed = TexturedMesh(mesh.V - centre, mesh.F, mesh.UV, mesh.F_uv)  # the ring looks at the origin
+    placed_rig = jaw.__class__(jaw.weight, jaw.pivot - centre)
+    turned = lift(pose_jaw(placed.V, placed_rig, degrees), lip_weights(placed.V, rim, placed_rig)[0], lower_mm)
     topology = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
-    turned = pose_jaw(placed.V, jaw.__class__(jaw.weight, jaw.pivot - centre), -10.0)
     ref = render_views(torch.tensor(turned, dtype=torch.float32), topology, cameras, ("color", "depth", "normal"),
                        uv=torch.tensor(mesh.UV, dtype=torch.float32), texture=texture, mask_texture=mask, sh=sh)
     targets = ExpressionTargets(cameras, *(ref.dense(p).detach() for p in ("color", "depth", "normal", "coverage")), sh)
+    return placed, turned, targets, texture, mask
+
+
+def test_the_search_recovers_a_jaw_turned_in_the_references(rig, small_bust):
+    placed, turned, targets, texture, mask = turned_scene(rig, small_bust, -10.0)
     posed, entry, _ = search_jaw(placed, targets, texture, mask, (-30.0, 10.0), progress=lambda s: None)
     assert entry["pitch_deg"] == pytest.approx(-10.0, abs=FINE_STEP_DEG / 2 + EXACT)
     assert entry["score"] < entry["score_at_start"]
     assert np.abs(posed.V - turned).max() < 0.5
+
+
+def test_the_search_keeps_the_start_when_the_references_show_it(rig, small_bust):
+    placed, _, targets, texture, mask = turned_scene(rig, small_bust, 0.0)
+    posed, entry, _ = search_jaw(placed, targets, texture, mask, (-30.0, 10.0), progress=lambda s: None)
+    assert entry["pitch_deg"] == 0.0 and posed is placed
+
+
+def test_lip_weights_split_the_rim_by_the_jaw_and_fade_away_from_it(rig, small_bust):
+    _, rim, jaw = rig
+    V, marks = small_bust.mesh.V, small_bust.landmarks
+    lower, upper = lip_weights(V, rim, jaw)
+    below = rim[V[rim, 1] < marks["mouth"][1] - 1.0]
+    above = rim[V[rim, 1] > marks["mouth"][1] + 1.0]
+    assert lower[below].min() > 0.9 and upper[above].min() > 0.9
+    assert lower[above].max() < 0.1 and upper[below].max() < 0.1
+    nearest = lambda p: int(np.argmin(np.linalg.norm(V - p, axis=1)))  # noqa: E731
+    for far in ("nose_tip", "head_top", "neck_cut"):
+        assert lower[nearest(marks[far])] == 0.0 and upper[nearest(marks[far])] == 0.0, far
+    np.testing.assert_allclose(lift(V, lower, 2.0) - V, np.stack([0 * lower, 2.0 * lower, 0 * lower], 1), atol=EXACT)
+
+
+def test_the_search_recovers_a_lifted_lower_lip_after_the_turn(rig, small_bust):
+    placed, turned, targets, texture, mask = turned_scene(rig, small_bust, -10.0, lower_mm=2.0)
+    posed, entry, _ = search_jaw(placed, targets, texture, mask, (-30.0, 10.0), progress=lambda s: None,
+                                 lips_mm=(-6.0, 6.0))
+    assert entry["pitch_deg"] == pytest.approx(-10.0, abs=1.0)
+    assert entry["lower_lip_mm"] == pytest.approx(2.0, abs=0.5)
+    assert abs(entry["upper_lip_mm"]) <= 0.5
+    assert np.abs(posed.V - turned).max() < 1.0
 
 
 def test_jaw_settings_are_checked():
@@ -121,3 +158,8 @@ def test_jaw_settings_are_checked():
     for bad in ((5.0, 10.0), (-30.0, -5.0), (-100.0, 10.0), (-30.0,)):
         with pytest.raises(ValueError, match="jaw_search_deg"):
             Schedule(jaw_search_deg=bad)
+    assert Schedule().jaw_lips_mm is None
+    Schedule(jaw_lips_mm=(-6.0, 6.0))
+    for bad in ((1.0, 6.0), (-6.0, -1.0), (-40.0, 6.0)):
+        with pytest.raises(ValueError, match="jaw_lips_mm"):
+            Schedule(jaw_lips_mm=bad)
