@@ -81,12 +81,15 @@ def cotangent_weights(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return half_cot
 
 
-def cotangent_laplacian(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
+def cotangent_laplacian(V: np.ndarray, F: np.ndarray, face_weight: np.ndarray | None = None) -> sp.csr_matrix:
     """Cotangent Laplacian ``L`` (positive semi-definite sign convention).
 
     Args:
         V: (n, 3) float vertex positions, mm.
         F: (m, 3) int vertex indices per triangle; any orientation.
+        face_weight: (m,) float ``>= 0`` or None (all 1): each triangle's stiffness matrix is scaled by its
+            weight before the sum, so ``L`` stays symmetric PSD (a sum of PSD matrices with non-negative
+            factors) and is the plain Laplacian where every weight is 1.
 
     Returns:
         (n, n) float64 ``scipy.sparse.csr_matrix``, dimensionless, symmetric PSD:
@@ -98,6 +101,12 @@ def cotangent_laplacian(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
     V, F = _check_mesh(V, F, "cotangent_laplacian")
     n = len(V)
     w = cotangent_weights(V, F)  # (m, 3)
+    if face_weight is not None:
+        face_weight = np.asarray(face_weight, dtype=np.float64)
+        if face_weight.shape != (len(F),) or not np.all(np.isfinite(face_weight)) or np.any(face_weight < 0):
+            raise InputError("cotangent_laplacian", f"face_weight must be ({len(F)},) finite values >= 0, got shape "
+                             f"{face_weight.shape}")
+        w = w * face_weight[:, None]
     i = np.roll(F, -1, axis=1).ravel()  # opposite edge of corner k: (k+1, k+2)
     j = np.roll(F, -2, axis=1).ravel()
     w = w.ravel()
@@ -131,7 +140,8 @@ def uniform_laplacian(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
     return L
 
 
-def system_matrix(V: np.ndarray, F: np.ndarray, lam: float, laplacian: str = "cotangent") -> sp.csr_matrix:
+def system_matrix(V: np.ndarray, F: np.ndarray, lam: float, laplacian: str = "cotangent",
+                  face_weight: np.ndarray | None = None) -> sp.csr_matrix:
     """The LargeSteps matrix ``M = I + lam * L``.
 
     ``L`` is symmetric positive semi-definite (sum of per-triangle P1 stiffness
@@ -145,6 +155,8 @@ def system_matrix(V: np.ndarray, F: np.ndarray, lam: float, laplacian: str = "co
         F: (m, 3) int vertex indices per triangle.
         lam: regularisation weight ``lambda >= 0``, dimensionless.
         laplacian: ``"cotangent"`` (the paper's choice) or ``"uniform"``.
+        face_weight: (m,) per-triangle factor on ``lam`` (cotangent only; None = 1 everywhere, the paper):
+            a spatially varying stiffness, ``Schedule.mouth_stiffness``.
 
     Returns:
         (n, n) float64 ``scipy.sparse.csr_matrix``, dimensionless, SPD, sorted indices.
@@ -153,7 +165,9 @@ def system_matrix(V: np.ndarray, F: np.ndarray, lam: float, laplacian: str = "co
     if not np.isfinite(lam) or lam < 0:
         raise InputError("system_matrix", f"lam must be a finite number >= 0, got {lam}")
     if laplacian == "cotangent":
-        L = cotangent_laplacian(V, F)
+        L = cotangent_laplacian(V, F, face_weight)
+    elif face_weight is not None:
+        raise InputError("system_matrix", "face_weight needs the cotangent Laplacian")
     elif laplacian == "uniform":
         L = uniform_laplacian(V, F)
     else:

@@ -275,30 +275,35 @@ class LargeStepsParametrization:
         laplacian: ``"cotangent"`` (paper) or ``"uniform"``.
         dtype: torch dtype of ``u`` (float32 by default, DESIGN.md).
         device: device of ``u``; default: ``V``'s device if a tensor, else CPU.
+        face_weight: (m,) per-triangle factor on ``lam`` (None = 1, the paper;
+            :func:`gpja.register.laplacian.system_matrix`).
 
     Attributes:
         V: (n, 3) float64 numpy, mm: the positions ``M`` was built from.
         F: (m, 3) int64 numpy.
         lam: float.
+        face_weight: (m,) float64 or None.
         M: (n, n) float64 scipy CSR, dimensionless.
         solver: :class:`SmoothingSolver` of ``M``.
         u: (n, 3) ``dtype`` leaf tensor on ``device``, mm, ``requires_grad=True``.
     """
 
     def __init__(self, V, F, lam: float, laplacian: str = "cotangent",
-                 dtype: torch.dtype = torch.float32, device: torch.device | str | None = None):
+                 dtype: torch.dtype = torch.float32, device: torch.device | str | None = None,
+                 face_weight: np.ndarray | None = None):
         self.laplacian = laplacian
         self.dtype = dtype
         self.device = device
-        self.rebuild(V, F, lam)
+        self.rebuild(V, F, lam, face_weight)
 
-    def rebuild(self, V, F, lam: float | None = None) -> None:
+    def rebuild(self, V, F, lam: float | None = None, face_weight: np.ndarray | None = None) -> None:
         """Rebuild ``M``, its factor and ``u`` for new positions/faces (e.g. after tessellation).
 
         Args:
             V: (n', 3) vertex positions, mm (numpy or torch; detached).
             F: (m', 3) int vertex indices per triangle.
             lam: new ``lambda``; ``None`` keeps the current one.
+            face_weight: (m',) per-triangle factor on ``lambda`` for the new faces (None = 1).
         """
         device = self.device
         if isinstance(V, torch.Tensor):
@@ -311,7 +316,8 @@ class LargeStepsParametrization:
         self.V = np.array(V, dtype=np.float64)
         self.F = np.array(F, dtype=np.int64)
         self.lam = float(lam)
-        self.M = system_matrix(self.V, self.F, self.lam, laplacian=self.laplacian)
+        self.face_weight = None if face_weight is None else np.asarray(face_weight, dtype=np.float64)
+        self.M = system_matrix(self.V, self.F, self.lam, laplacian=self.laplacian, face_weight=self.face_weight)
         self.solver = SmoothingSolver(self.M)
         self._M_torch = None
         u = torch.from_numpy(self.M @ self.V)  # float64 product, then cast: exact to dtype rounding

@@ -129,6 +129,11 @@ class Schedule:
             mouth mask, ``gpja.register.hold.mouth_factor``): 0 within ``free`` mm, 1 from ``held`` mm on. The
             lips' surroundings (chin, mouth corners, the band between lip and chin) move with every expression
             of the mouth, even where the first flow stage moved them less than ``hold_moved_mm``.
+        mouth_stiffness: (factor, near, far) or None (off, the paper's one lambda everywhere): each level's
+            lambda is multiplied by ``factor`` on the triangles within ``near`` mm of the mouth's socket (the
+            template's mouth mask) and by 1 from ``far`` mm on, linear between (:func:`mouth_face_weight`). The
+            descent of the fine levels, at small lambdas, rolled the lips of the lip funnelers inwards while it
+            aligned the rest of the face; a stiffer mouth keeps the flow stages' lips.
         spring_rate: per level iteration, the fraction of each edge's length change from the registration's
             start that is given back, along the surface (0 = off, the paper; beyond the paper,
             ``gpja.register.hold.edge_spring_step``): inside a lip of uniform colour it keeps the material's
@@ -201,6 +206,7 @@ class Schedule:
     hold_moved_mm: tuple[float, float] = (0.75, 2.5)
     hold_gap_mm: tuple[float, float] | None = None
     hold_mouth_mm: tuple[float, float] | None = None
+    mouth_stiffness: tuple[float, float, float] | None = None
     spring_rate: float = 0.0
     flow_rounds: int = 0
     flow_levels: int = 1
@@ -290,6 +296,12 @@ class Schedule:
                                                or not 0.0 <= float(self.hold_mouth_mm[0]) < float(self.hold_mouth_mm[1])):
             raise ValueError(f"hold_mouth_mm must be null or two distances 0 <= free < held (mm), got "
                              f"{self.hold_mouth_mm}")
+        if self.mouth_stiffness is not None and (len(self.mouth_stiffness) != 3
+                                                 or not float(self.mouth_stiffness[0]) >= 1.0
+                                                 or not 0.0 <= float(self.mouth_stiffness[1])
+                                                 < float(self.mouth_stiffness[2])):
+            raise ValueError(f"mouth_stiffness must be null or [factor >= 1, near, far] with 0 <= near < far (mm), got "
+                             f"{self.mouth_stiffness}")
         if self.jaw_search_deg is not None and (len(self.jaw_search_deg) != 2
                                                 or not -90.0 <= float(self.jaw_search_deg[0]) <= 0.0
                                                 <= float(self.jaw_search_deg[1]) <= 90.0):
@@ -610,6 +622,23 @@ def constraint_optimizers(param: LargeStepsParametrization, rotation: tuple[str,
     return {c: param.optimizer(lr) for c in rotation}
 
 
+def mouth_face_weight(mesh: TexturedMesh, mask_texture: torch.Tensor,
+                      stiffness: tuple[float, float, float]) -> np.ndarray:
+    """(m,) float64 factor on a level's lambda for each face of ``mesh`` (``Schedule.mouth_stiffness``).
+
+    ``stiffness`` = (factor, near, far): a vertex within ``near`` mm (straight line, on ``mesh``) of the nearest
+    socket vertex (:func:`gpja.register.flow.socket_vertices` of ``mask_texture``, (T, T, 1), 0 = socket) gets
+    ``factor``, one from ``far`` mm on 1, linear between (:func:`gpja.register.hold.mouth_factor`); a face gets
+    the mean of its corners'. All ones when the mask marks no socket.
+    """
+    from gpja.register.flow import socket_vertices
+
+    factor, near, far = (float(v) for v in stiffness)
+    away = mouth_factor(mesh.V, socket_vertices(mesh, mask_texture), (near, far))  # 0 near, 1 far
+    vertex = factor + (1.0 - factor) * away
+    return vertex[mesh.F].mean(axis=1)
+
+
 def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switches: Switches,
                    schedule: Schedule, pool: int, *, targets: ExpressionTargets, texture: torch.Tensor,
                    mask_texture: torch.Tensor, render, cull_backfaces: bool, progress: Callable[[str], None],
@@ -630,7 +659,10 @@ def optimise_level(mesh: TexturedMesh, name: str, lam: float, n_iter: int, switc
     targets = targets.downsampled(factor)
     cycle = ViewCycle(len(targets.cameras), schedule.views(settings_level), schedule.seed, level + 1)
     lr = schedule.lr_fraction * mean_edge_length(mesh)
-    param = LargeStepsParametrization(mesh.V, mesh.F, lam)
+    face_weight = None
+    if schedule.mouth_stiffness is not None:
+        face_weight = mouth_face_weight(mesh, mask_texture, tuple(schedule.mouth_stiffness))
+    param = LargeStepsParametrization(mesh.V, mesh.F, lam, face_weight=face_weight)
     optimizers = constraint_optimizers(param, rotation, lr, schedule.optimizer_state)
     topo = Topology.in_spatial_order(mesh.V, mesh.F, mesh.F_uv) if schedule.face_order == "spatial" else \
         Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))

@@ -181,6 +181,29 @@ def test_system_matrix_matches_dense(lam):
     np.testing.assert_allclose(Mu.toarray(), np.eye(len(V)) + lam * uniform_laplacian(V, F).toarray())
 
 
+def test_face_weights_scale_each_triangles_stiffness():
+    V, F = grid(z_amp=4.0)
+    L = cotangent_laplacian(V, F)
+    np.testing.assert_array_equal(cotangent_laplacian(V, F, np.ones(len(F))).toarray(), L.toarray())
+    np.testing.assert_allclose(cotangent_laplacian(V, F, np.full(len(F), 3.0)).toarray(), 3.0 * L.toarray(),
+                               atol=ANALYTIC_F64 * abs(L).max())
+    # one triangle alone, weighted: its own stiffness matrix times the weight (the right triangle's, analytic)
+    right = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_allclose(cotangent_laplacian(right, np.array([[0, 1, 2]]), np.array([2.5])).toarray(),
+                               2.5 * np.array([[1.0, -0.5, -0.5], [-0.5, 0.5, 0.0], [-0.5, 0.0, 0.5]]), atol=ANALYTIC_F64)
+    # the sum of per-triangle parts: weights on the left half only change the left half's rows
+    weight = np.where(V[F].mean(axis=1)[:, 0] < V[:, 0].mean(), 4.0, 1.0)
+    Lw = cotangent_laplacian(V, F, weight)
+    assert abs(Lw - Lw.T).max() == 0.0
+    np.testing.assert_allclose(Lw @ np.ones(len(V)), 0.0, atol=ANALYTIC_F64 * abs(Lw).max())
+    assert np.linalg.eigvalsh(Lw.toarray()).min() > -PSD_SLACK
+    far_right = V[:, 0] > V[:, 0].max() - 1.0
+    np.testing.assert_allclose(Lw.toarray()[far_right], L.toarray()[far_right], atol=ANALYTIC_F64)
+    assert abs(Lw - L).max() > 1.0  # the left half did change: the test can fail
+    M = system_matrix(V, F, 2.0, face_weight=weight)
+    np.testing.assert_allclose(M.toarray(), np.eye(len(V)) + 2.0 * Lw.toarray(), atol=DENSE_REFERENCE)
+
+
 def test_bad_input_raises():
     V, F = grid(2, 2)
     with pytest.raises(InputError, match="lam"):
@@ -193,6 +216,12 @@ def test_bad_input_raises():
         cotangent_laplacian(V, F + 100)
     with pytest.raises(InputError, match="integer"):
         cotangent_laplacian(V, F.astype(float))
+    with pytest.raises(InputError, match="face_weight"):
+        cotangent_laplacian(V, F, np.ones(len(F) - 1))
+    with pytest.raises(InputError, match="face_weight"):
+        cotangent_laplacian(V, F, np.full(len(F), -1.0))
+    with pytest.raises(InputError, match="cotangent"):
+        system_matrix(V, F, 1.0, laplacian="uniform", face_weight=np.ones(len(F)))
 
 
 # ---------------------------------------------------------------- regression

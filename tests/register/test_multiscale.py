@@ -4,7 +4,10 @@ import torch
 
 from gpja.mesh import TexturedMesh, unique_edges
 from gpja.register.hra import ExpressionTargets, Switches
-from gpja.register.multiscale import RegistrationDiverged, Schedule, ViewCycle, optimise
+from gpja.register.flow import socket_vertices
+from gpja.register.hold import mouth_factor
+from gpja.register.laplacian import cotangent_laplacian
+from gpja.register.multiscale import RegistrationDiverged, Schedule, ViewCycle, mouth_face_weight, optimise
 from gpja.render import render_scan_targets
 from tests.render.scenes import sphere, spherical_uv
 from tests.render.test_passes import surface_distance, tetrahedral_cameras
@@ -345,6 +348,52 @@ def test_schedule_checks_the_speed_settings():
         Schedule(lambdas=(10.0,), iterations=(5,), image_factor=(0,))
     schedule = Schedule(lambdas=(10.0, 5.0), iterations=(5, 5), views_per_iteration=(2, 0), image_factor=(2, 1))
     assert [schedule.views(k) for k in (0, 1)] == [2, 0] and [schedule.factor(k) for k in (0, 1)] == [2, 1]
+
+
+def half_socket_mask(size=16):
+    """(size, size, 1) mouth mask whose first quarter of rows is socket (0): a cap of the sphere's UVs."""
+    mask = torch.ones(size, size, 1)
+    mask[: size // 4] = 0.0
+    return mask
+
+
+def test_mouth_stiffness_weights_the_faces_by_their_distance_to_the_socket():
+    mesh, mask = start_mesh(), half_socket_mask()
+    socket = socket_vertices(mesh, mask)
+    assert 0 < socket.sum() < len(socket) // 2
+    weight = mouth_face_weight(mesh, mask, (4.0, 10.0, 30.0))
+    vertex = 4.0 - 3.0 * mouth_factor(mesh.V, socket, (10.0, 30.0))
+    np.testing.assert_allclose(weight, vertex[mesh.F].mean(axis=1), rtol=0, atol=1e-12)
+    assert weight[socket[mesh.F].all(axis=1)].min() == 4.0  # in the socket: the whole factor
+    assert weight.min() == 1.0 and 1.0 < np.median(weight[weight > 1.0]) < 4.0  # far: 1; a ramp between
+    np.testing.assert_array_equal(mouth_face_weight(mesh, torch.ones(16, 16, 1), (4.0, 10.0, 30.0)), 1.0)  # no socket
+
+
+def test_a_stiffer_mouth_deforms_smoothly_there_and_factor_one_is_the_paper():
+    _, _, targets = ellipsoid_targets(size=32)
+    kw = dict(texture=torch.ones(4, 4, 3), mask_texture=half_socket_mask(), progress_every=0)
+    settings = dict(lambdas=(2.0,), iterations=(20,), lr_fraction=0.2)
+    mesh = start_mesh()
+    plain = optimise(mesh, targets, Switches(color=False), Schedule(**settings), **kw)[0]
+    one = optimise(mesh, targets, Switches(color=False), Schedule(**settings, mouth_stiffness=(1.0, 5.0, 20.0)), **kw)[0]
+    np.testing.assert_array_equal(one.V, plain.V)  # identity: factor 1 is one lambda everywhere
+    stiff = optimise(mesh, targets, Switches(color=False), Schedule(**settings, mouth_stiffness=(50.0, 5.0, 20.0)),
+                     **kw)[0]
+    near = socket_vertices(mesh, kw["mask_texture"])
+    far = mouth_factor(mesh.V, near, (5.0, 20.0)) == 1.0
+    L = cotangent_laplacian(mesh.V, mesh.F)
+
+    def roughness(out, rows):  # the displacement's Laplacian, mm, on those vertices
+        return float(np.linalg.norm((L @ (out.V - mesh.V))[rows], axis=1).mean())
+
+    assert roughness(stiff, near) < 0.2 * roughness(plain, near)  # measured 0.10 against 1.56
+    assert roughness(stiff, far) > 0.5 * roughness(plain, far)  # the rest is not smoothed with it
+
+
+@pytest.mark.parametrize("bad", [(0.5, 5.0, 20.0), (3.0, 20.0, 5.0), (3.0, -1.0, 5.0), (3.0, 5.0)])
+def test_schedule_refuses_a_bad_mouth_stiffness(bad):
+    with pytest.raises(ValueError, match="mouth_stiffness"):
+        Schedule(mouth_stiffness=bad)
 
 
 def test_all_views_at_full_resolution_is_the_paper_schedule_exactly():
