@@ -162,9 +162,10 @@ def unpose_jaw(V: np.ndarray, rig: JawRig, degrees: float) -> np.ndarray:
 
 
 def search_grid(lo: float, hi: float, score: Callable[[float], float]) -> tuple[float, list[tuple[float, float]]]:
-    """The angle in [``lo``, ``hi``] (degrees) of the lowest ``score``: a coarse grid (``COARSE_STEP_DEG``, both
-    ends included), then a fine one within a coarse step of its best. Returns the angle and every (angle,
-    score) tried, in order. Ties go to the angle nearest 0 (no motion)."""
+    """The value in [``lo``, ``hi``] of the lowest ``score``: a coarse grid (``COARSE_STEP_DEG``, both ends
+    included), then a fine one within a coarse step of its best. Returns the value and every (value, score)
+    tried, in order. Ties go to the value nearest 0 (no motion). The jaw's pitch searches degrees, the lips'
+    lift (``search_jaw``'s ``lips_mm``) millimetres on the same steps."""
     tried: dict[float, float] = {}
 
     def best_of(angles: np.ndarray) -> float:
@@ -243,7 +244,8 @@ def search_jaw(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture:
 
     start = time.perf_counter()
     socket = socket_vertices(mesh, mask_texture)
-    rig = jaw_weights(mesh.V, socket, socket_rim(mesh.F, socket))
+    rim = socket_rim(mesh.F, socket)
+    rig = jaw_weights(mesh.V, socket, rim)
     score_of = colour_score(mesh, targets, texture, mask_texture, render)
     best, tried = search_grid(float(range_deg[0]), float(range_deg[1]), lambda a: score_of(pose_jaw(mesh.V, rig, a)))
     scores = dict(tried)
@@ -263,7 +265,7 @@ def search_jaw(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture:
     V = pose_jaw(mesh.V, rig, best)
     final = scores[best]
     if lips_mm is not None:
-        lower, upper = lip_weights(mesh.V, socket_rim(mesh.F, socket), rig)
+        lower, upper = lip_weights(mesh.V, rim, rig)
         for name, weight in (("lower_lip_mm", lower), ("upper_lip_mm", upper)):
             moved, tried_lip = search_grid(float(lips_mm[0]), float(lips_mm[1]), lambda t: score_of(lift(V, weight, t)))
             V = lift(V, weight, moved)

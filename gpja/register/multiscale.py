@@ -555,14 +555,15 @@ def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, tar
         from gpja.register.flow import socket_vertices
 
         mouth = mouth_factor(start.V, socket_vertices(start, mask_texture), tuple(schedule.hold_mouth_mm))
+    freed_at_mouth = None if mouth is None else float(np.mean(mouth == 0))
     if release is not None:
         mouth = release if mouth is None else mouth * release
     hold = TangentialHold.after_first_phase(start, moved, schedule.lambdas[0], schedule.hold_tangential,
                                             tuple(schedule.hold_moved_mm), gap, gap_mm, schedule.spring_rate, mouth)
     gated = "" if gap is None else (f"; free beyond {gap_mm[1]:g} mm off the scan: {np.mean(gap > gap_mm[1]):.0%} "
                                     "of the vertices")
-    if schedule.hold_mouth_mm is not None:
-        gated += (f"; free within {schedule.hold_mouth_mm[0]:g} mm of the mouth's socket: {np.mean(mouth == 0):.0%} "
+    if freed_at_mouth is not None:
+        gated += (f"; free within {schedule.hold_mouth_mm[0]:g} mm of the mouth's socket: {freed_at_mouth:.0%} "
                   "of the vertices")
     if release is not None:
         gated += f"; free where the jaw's turn is blended: {np.mean(release == 0):.0%} of the vertices"
