@@ -271,11 +271,12 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
     stages = json.loads((work / f"results/{cfg['dataset']}/S01/gpja/stages/{closed}.json").read_text())["stages"]
     gpja_cfg = cfg["registration"]["gpja"]
     flow_levels = gpja_cfg.get("flow_levels", 1) if gpja_cfg.get("flow_rounds") else 0
-    # snakemake merges ci.yaml's sections over the default's: the jaw search, the untangling and the snap are the
+    # snakemake merges ci.yaml's sections over the default's: the jaw and lid searches, the untangling and the snap are the
     # default's unless ci.yaml sets them
     default_gpja = yaml.safe_load((ROOT / "config/config.yaml").read_text())["registration"]["gpja"]
     merged = {**default_gpja, **gpja_cfg}
-    expected = (["start"] + ["jaw"] * (merged.get("jaw_search_deg") is not None) + ["flow"] * (flow_levels > 0)
+    expected = (["start"] + ["jaw"] * (merged.get("jaw_search_deg") is not None)
+                + ["lids"] * (merged.get("lid_search_deg") is not None) + ["flow"] * (flow_levels > 0)
                 + ["warmup"] * bool(gpja_cfg.get("warmup_iterations")))
     for k in range(len(gpja_cfg["lambdas"])):
         expected += [f"flow{k + 1}"] * (0 < k < flow_levels) + [f"level{k + 1}"]

@@ -148,6 +148,10 @@ class Schedule:
             colour constraint is on.
         jaw_lips_mm: (lo, hi) or None (off): after a turn, the lower and then the upper lip are also moved up or
             down by the lift in [lo, hi] mm that matches the references best (``gpja.register.jaw.lip_weights``).
+        lid_search_deg: the largest angle (degrees) or None (off, the paper): after the jaw search and before the
+            first flow stage, the upper lids are turned down over the eyeballs by the angle in [0, this] whose
+            render best matches the references (beyond the paper, ``gpja.register.lids``; the rig comes from the
+            whites of the eyes in the shared texture). Only runs when the colour constraint is on.
         flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
         flow_still_mm: a flow match that moves its vertex less than this is taken as "stays" (0 = off, the
             stage as first written; ``gpja.register.flow.match_round``).
@@ -212,6 +216,7 @@ class Schedule:
     flow_levels: int = 1
     jaw_search_deg: tuple[float, float] | None = None
     jaw_lips_mm: tuple[float, float] | None = None
+    lid_search_deg: float | None = None
     flow_smoothness: float = FlowSettings.smoothness
     flow_still_mm: float = FlowSettings.still_mm
     flow_chroma: float = FlowSettings.chroma
@@ -307,6 +312,8 @@ class Schedule:
                                                 <= float(self.jaw_search_deg[1]) <= 90.0):
             raise ValueError(f"jaw_search_deg must be null or two angles -90 <= lo <= 0 <= hi <= 90 (degrees), got "
                              f"{self.jaw_search_deg}")
+        if self.lid_search_deg is not None and not 0.0 < float(self.lid_search_deg) <= 120.0:
+            raise ValueError(f"lid_search_deg must be null or an angle in (0, 120] degrees, got {self.lid_search_deg}")
         if self.jaw_lips_mm is not None and (len(self.jaw_lips_mm) != 2
                                              or not -30.0 <= float(self.jaw_lips_mm[0]) <= 0.0
                                              <= float(self.jaw_lips_mm[1]) <= 30.0):
@@ -444,6 +451,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     release = None  # the hold's release where the jaw search's rig blends jaw and skull
     if schedule.jaw_search_deg is not None and switches.color:
         mesh, release = jaw_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage)
+    if schedule.lid_search_deg is not None and switches.color:
+        mesh = lids_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage)
     if flow_levels:
         before_flow = mesh
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
@@ -589,6 +598,20 @@ def jaw_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule
     if on_stage is not None:
         on_stage("jaw", mesh)
     return mesh, (blend_release(rig.weight) if entry["pitch_deg"] != 0.0 else None)
+
+
+def lids_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,
+               mask_texture: torch.Tensor, render, progress: Callable[[str], None], log: RegistrationLog,
+               on_stage: Callable[[str, TexturedMesh], None] | None) -> TexturedMesh:
+    """The lid search (``gpja.register.lids``), logged and saved as stage ``lids``; returns the posed mesh (the
+    hold, started after the flow stage, then keeps the lids where the search closed them)."""
+    from gpja.register.lids import search_lids
+
+    mesh, entry = search_lids(mesh, targets, texture, mask_texture, float(schedule.lid_search_deg), render, progress)
+    log.levels.append(entry)
+    if on_stage is not None:
+        on_stage("lids", mesh)
+    return mesh
 
 
 def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,
