@@ -13,8 +13,9 @@ descent does not, as the jaw's pitch is (:mod:`gpja.register.jaw`).
 The rig comes from the shared texture and the start's geometry, not from any ground truth:
 
 1. The eye openings are where the texture shows the white of the eye (:func:`find_openings`): texels of low
-   saturation and at least skin brightness, grouped into the two largest clusters; an opening is the convex hull
-   of its cluster's texels (the iris between the two whites included).
+   saturation and at least skin brightness, outside the mouth's socket (teeth are white too), grouped into the two
+   largest clusters; an opening is the convex hull of its cluster's texels (the iris between the two whites
+   included). A cluster over 3 % of the texture, or one whose eyeball would not sit above the mouth, is no eye.
 2. On the start mesh, the opening's texels lie on the eyeball. A sphere of the adult eyeball's radius
    (``EYE_RADIUS_MM``) fitted to them gives the centre the lid turns about; the hull's boundary gives the upper
    and the lower lid margin as angles about that centre's horizontal axis, as functions of x (:func:`eye_rigs`).
@@ -48,8 +49,12 @@ EYE_RADIUS_MM = 12.0
 SCLERA_MAX_SATURATION = 0.22
 #: ... and whose value (max of RGB) is at least this fraction of the skin's median value
 SCLERA_MIN_VALUE = 0.9
-#: a cluster of white texels smaller than this fraction of the texture's texels is noise (a highlight, a mole's rim)
+#: a cluster of white texels smaller than this fraction of the texture's texels is noise (a highlight, a mole's rim);
+#: an eye's whites larger than the second is no eye (a pale face, a white backdrop; the default's are 0.04 %)
 MIN_CLUSTER_FRACTION = 2e-5
+MAX_EYE_FRACTION = 0.03
+#: an eyeball's centre lies at least this far above the mouth's socket (mm; adults: 60-75): what is not is no eye
+EYES_ABOVE_MOUTH_MM = 30.0
 #: the upper lid: it turns whole up to the first arc length (mm) above its margin and not at all beyond the second
 #: (anatomically the lid is 8-10 mm from margin to crease, the brow 10-20 mm above the margin). A narrower band,
 #: (4, 12), needed turns to the search's end (89.5 degrees) on a seed-7 capture and moved its lids away
@@ -81,9 +86,10 @@ class EyeRig:
     gap_max: float
 
 
-def find_openings(texture: np.ndarray) -> list[np.ndarray]:
+def find_openings(texture: np.ndarray, mouth_mask: np.ndarray | None = None) -> list[np.ndarray]:
     """The eye openings of a texture: up to two convex hulls (k, 2) float32 in texel coordinates (column, row),
-    largest first (module docstring, step 1). ``texture``: (T, T, 3) float albedo in [0, 1]. [] when the texture
+    largest first (module docstring, step 1). ``texture``: (T, T, 3) float albedo in [0, 1]; ``mouth_mask``: (T', T')
+    float, 0 on the mouth's socket (its teeth are white too), resampled to T; None = no socket. [] when the texture
     shows no white of an eye."""
     import cv2  # OpenCV's connected components and convex hull: the well-kept versions of both
 
@@ -93,7 +99,11 @@ def find_openings(texture: np.ndarray) -> list[np.ndarray]:
     lit = value[value > 0.2]
     if lit.size == 0:
         return []
-    white = ((saturation < SCLERA_MAX_SATURATION) & (value >= SCLERA_MIN_VALUE * float(np.median(lit)))).astype(np.uint8)
+    white = (saturation < SCLERA_MAX_SATURATION) & (value >= SCLERA_MIN_VALUE * float(np.median(lit)))
+    if mouth_mask is not None:
+        mask = cv2.resize(np.asarray(mouth_mask, dtype=np.float32), (t.shape[1], t.shape[0]), interpolation=cv2.INTER_NEAREST)
+        white &= mask >= 0.5
+    white = white.astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(white, connectivity=8)
     min_area = max(4, int(MIN_CLUSTER_FRACTION * white.size))
     parts = sorted((k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area),
@@ -113,7 +123,7 @@ def find_openings(texture: np.ndarray) -> list[np.ndarray]:
                 break
         else:
             groups.append({"parts": [k], "box": (x, y, x + w, y + h), "height": h, "area": int(stats[k, cv2.CC_STAT_AREA])})
-    groups.sort(key=lambda g: -g["area"])
+    groups = sorted((g for g in groups if g["area"] <= MAX_EYE_FRACTION * white.size), key=lambda g: -g["area"])
     hulls = []
     for g in groups[:2]:
         texels = np.concatenate([np.argwhere(labels == k)[:, ::-1] for k in g["parts"]]).astype(np.float32)
@@ -167,14 +177,21 @@ def margin_angles(centre: np.ndarray, boundary: np.ndarray) -> tuple[tuple[np.nd
     return chains[0], chains[1]
 
 
-def eye_rigs(mesh: TexturedMesh, texture: np.ndarray) -> list[EyeRig]:
+def eye_rigs(mesh: TexturedMesh, texture: np.ndarray, mouth_mask: np.ndarray | None = None) -> list[EyeRig]:
     """The lid rigs of ``mesh`` (the start, template topology with UVs, mm, canonical frame) from the openings
-    ``texture`` (T, T, 3) shows (module docstring, steps 1-2); [] when it shows none."""
+    ``texture`` (T, T, 3) shows (module docstring, steps 1-2); [] when it shows none. ``mouth_mask``: (T', T') float,
+    0 on the socket: its texels are no eye's, and an eye's centre must lie ``EYES_ABOVE_MOUTH_MM`` above it."""
     from gpja.apply.remesh import locate_uv, positions_at_uv
 
     size = int(np.asarray(texture).shape[0])
+    mouth_y = None
+    if mouth_mask is not None:
+        from gpja.register.flow import socket_vertices
+
+        socket = socket_vertices(mesh, torch.as_tensor(np.asarray(mouth_mask, dtype=np.float32))[..., None])
+        mouth_y = float(mesh.V[socket, 1].mean()) if socket.any() else None
     rigs = []
-    for hull in find_openings(texture):
+    for hull in find_openings(texture, mouth_mask):
         boundary_px, inside_px = hull_samples(hull)
         boundary = positions_at_uv(mesh, locate_uv(mesh, texel_uv(boundary_px, size)))
         inside = positions_at_uv(mesh, locate_uv(mesh, texel_uv(inside_px, size)))
@@ -183,6 +200,8 @@ def eye_rigs(mesh: TexturedMesh, texture: np.ndarray) -> list[EyeRig]:
         if len(boundary) < 8 or len(inside) < 8:
             continue
         centre = fit_centre(inside)
+        if mouth_y is not None and centre[1] < mouth_y + EYES_ABOVE_MOUTH_MM:
+            continue
         upper, lower = margin_angles(centre, boundary)
         if len(upper[0]) < 2 or len(lower[0]) < 2:
             continue
@@ -247,7 +266,7 @@ def search_lids(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture
     from gpja.register.jaw import FINE_STEP_DEG, MIN_GAIN, colour_score, search_grid
 
     start = time.perf_counter()
-    rigs = eye_rigs(mesh, texture.detach().cpu().numpy())
+    rigs = eye_rigs(mesh, texture.detach().cpu().numpy(), mask_texture.detach().cpu().numpy()[..., 0])
     entry = {"stage": "lids", "eyes": len(rigs), "centres_mm": [r.centre.round(2).tolist() for r in rigs],
              "opening_deg": [round(float(np.degrees(r.gap_max)), 2) for r in rigs], "closing_deg": 0.0}
     if not rigs:

@@ -63,6 +63,26 @@ def test_two_eyes_are_found_where_the_whites_are_and_a_texture_without_them_has_
     assert find_openings(skin) == []
 
 
+def test_whites_on_the_socket_too_large_or_below_the_mouth_are_no_eyes(eye):
+    texture = eye_texture(columns=(40, 90))
+    teeth = np.zeros((SIZE, SIZE), dtype=bool)
+    teeth[100:108, 30:70] = True  # a row of teeth, larger than either eye's whites (2 % of the texels)
+    texture[teeth] = (0.9, 0.9, 0.88)
+    assert len(find_openings(texture)) == 2 and find_openings(texture)[0][:, 1].min() >= 100  # taken for an eye
+    socket = np.where(teeth, 0.0, 1.0)
+    hulls = find_openings(texture, socket)
+    assert len(hulls) == 2 and all(abs(h.mean(axis=0)[1] - 63.5) < 2.0 for h in hulls)
+    pale = np.full((SIZE, SIZE, 3), 0.85, dtype=np.float32)  # a face as white as an eye's white
+    pale[:, :, 0] = 0.88
+    assert find_openings(pale) == []
+    # the eyeball of the fixture with a mouth socket at its bottom cap (12 mm below its centre, not 30)
+    mesh, texture, _ = eye
+    cap = np.ones((SIZE, SIZE))
+    cap[-8:] = 0.0
+    assert eye_rigs(mesh, texture, cap) == []
+    assert len(eye_rigs(mesh, texture, np.ones((SIZE, SIZE)))) == 1
+
+
 def test_the_centre_of_points_on_a_sphere_of_the_eyes_radius_is_found():
     rng = np.random.default_rng(1)
     centre = np.array([31.0, 12.0, 65.0])
