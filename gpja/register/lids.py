@@ -101,7 +101,8 @@ def find_openings(texture: np.ndarray, mouth_mask: np.ndarray | None = None) -> 
         return []
     white = (saturation < SCLERA_MAX_SATURATION) & (value >= SCLERA_MIN_VALUE * float(np.median(lit)))
     if mouth_mask is not None:
-        mask = cv2.resize(np.asarray(mouth_mask, dtype=np.float32), (t.shape[1], t.shape[0]), interpolation=cv2.INTER_NEAREST)
+        mask = cv2.resize(np.asarray(mouth_mask, dtype=np.float32), (t.shape[1], t.shape[0]),
+                          interpolation=cv2.INTER_NEAREST)
         white &= mask >= 0.5
     white = white.astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(white, connectivity=8)
@@ -122,7 +123,8 @@ def find_openings(texture: np.ndarray, mouth_mask: np.ndarray | None = None) -> 
                 g["area"] += int(stats[k, cv2.CC_STAT_AREA])
                 break
         else:
-            groups.append({"parts": [k], "box": (x, y, x + w, y + h), "height": h, "area": int(stats[k, cv2.CC_STAT_AREA])})
+            groups.append({"parts": [k], "box": (x, y, x + w, y + h), "height": h,
+                           "area": int(stats[k, cv2.CC_STAT_AREA])})
     groups = sorted((g for g in groups if g["area"] <= MAX_EYE_FRACTION * white.size), key=lambda g: -g["area"])
     hulls = []
     for g in groups[:2]:
@@ -163,7 +165,10 @@ def fit_centre(points: np.ndarray, radius: float = EYE_RADIUS_MM) -> np.ndarray:
     return centre if centre[2] < points[:, 2].mean() else start
 
 
-def margin_angles(centre: np.ndarray, boundary: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+Margin = tuple[np.ndarray, np.ndarray]
+
+
+def margin_angles(centre: np.ndarray, boundary: np.ndarray) -> tuple[Margin, Margin]:
     """The upper and lower margin of an opening's ``boundary`` (k, 3) mm as (xs, angles) about ``centre``'s x axis:
     the boundary split by the line between its corners (its leftmost and rightmost points)."""
     phi = np.arctan2(boundary[:, 1] - centre[1], boundary[:, 2] - centre[2])
@@ -267,7 +272,8 @@ def search_lids(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture
 
     start = time.perf_counter()
     rigs = eye_rigs(mesh, texture.detach().cpu().numpy(), mask_texture.detach().cpu().numpy()[..., 0])
-    entry = {"stage": "lids", "eyes": len(rigs), "centres_mm": [r.centre.round(2).tolist() for r in rigs],
+    entry = {"stage": "lids", "vertices": int(len(mesh.V)), "eyes": len(rigs),
+             "centres_mm": [r.centre.round(2).tolist() for r in rigs],
              "opening_deg": [round(float(np.degrees(r.gap_max)), 2) for r in rigs], "closing_deg": 0.0}
     if not rigs:
         entry["seconds"] = round(time.perf_counter() - start, 3)
@@ -280,7 +286,8 @@ def search_lids(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture
     found = best
     if scores[best] > (1.0 - MIN_GAIN) * at_zero:
         best = 0.0
-    entry.update(closing_deg=best, best_closing_deg=found, score=round(scores[best], 6), score_at_start=round(at_zero, 6),
+    entry.update(closing_deg=best, best_closing_deg=found, score=round(scores[best], 6),
+                 score_at_start=round(at_zero, 6),
                  tried=[[a, round(s, 6)] for a, s in tried], seconds=round(time.perf_counter() - start, 3))
     if best == 0.0:
         progress(f"lids: stay (the best closing, {found:.1f} deg, matches the images {1 - scores[found] / at_zero:.1%} "

@@ -149,9 +149,9 @@ def lid_scene(eye, degrees):
     mesh, texture, rigs = eye
     cameras, sh = ring_cameras(3, 128, distance=60.0), torch.tensor(uniform_sh(), dtype=torch.float32)
     closed = pose_lids(mesh.V, rigs, degrees)
-    ref = render_views(torch.tensor(closed, dtype=torch.float32), Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv)),
-                       cameras, ("color", "depth", "normal"), uv=torch.tensor(mesh.UV, dtype=torch.float32),
-                       texture=torch.tensor(texture), sh=sh)
+    topology = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
+    ref = render_views(torch.tensor(closed, dtype=torch.float32), topology, cameras, ("color", "depth", "normal"),
+                       uv=torch.tensor(mesh.UV, dtype=torch.float32), texture=torch.tensor(texture), sh=sh)
     targets = ExpressionTargets(cameras, *(ref.dense(p).detach() for p in ("color", "depth", "normal", "coverage")), sh)
     return closed, targets, torch.tensor(texture), torch.ones(4, 4, 1)
 
