@@ -202,6 +202,17 @@ class TangentialHold:
             weight = weight * np.asarray(factor, dtype=np.float64)
         return cls(start.V.copy(), normals, weight, float(rate), float(spring_rate), unique_edges(start.F)[0])
 
+    def reanchored(self, V: np.ndarray, F: np.ndarray, weight: np.ndarray) -> "TangentialHold":
+        """This hold with the vertices where ``weight`` (n,) in [0, 1] is above 0 anchored at ``V`` (n, 3) mm (their
+        normals ``V``'s, faces ``F``) and held at least that much; the others keep their start, normal and weight
+        (``Schedule.hold_mouth_at_flow_mm``: the mouth held where the last flow stage put it)."""
+        weight = np.asarray(weight, dtype=np.float64)
+        moved = weight > 0
+        normals = vertex_normals(torch.from_numpy(np.asarray(V, dtype=np.float64)), torch.from_numpy(F)).numpy()
+        start, unit = self.start.copy(), self.normals.copy()
+        start[moved], unit[moved] = np.asarray(V, dtype=np.float64)[moved], normals[moved]
+        return TangentialHold(start, unit, np.maximum(self.weight, weight), self.rate, self.spring_rate, self.edges)
+
     @property
     def held_fraction(self) -> float:
         """Fraction of the vertices held with weight above 0.5."""

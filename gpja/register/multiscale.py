@@ -129,6 +129,12 @@ class Schedule:
             mouth mask, ``gpja.register.hold.mouth_factor``): 0 within ``free`` mm, 1 from ``held`` mm on. The
             lips' surroundings (chin, mouth corners, the band between lip and chin) move with every expression
             of the mouth, even where the first flow stage moved them less than ``hold_moved_mm``.
+        hold_mouth_at_flow_mm: (held, free) or None (off, the hold's start is the registration's): after the last
+            flow stage, the hold is anchored where that stage put the vertices within ``free`` mm of the mouth's
+            socket (the template's mouth mask), and those within ``held`` mm are held fully (linear between; the
+            weights only rise, ``TangentialHold.reanchored``). Stage by stage, the mouths were best right after a
+            flow stage and the descent of the fine levels gave 0.1-0.9 mm back, rolling a funneler's lower lip
+            inwards where the lips' uniform colour says nothing.
         mouth_stiffness: (factor, near, far) or None (off, the paper's one lambda everywhere): each level's
             lambda is multiplied by ``factor`` on the triangles within ``near`` mm of the mouth's socket (the
             template's mouth mask) and by 1 from ``far`` mm on, linear between (:func:`mouth_face_weight`). The
@@ -211,6 +217,7 @@ class Schedule:
     hold_gap_mm: tuple[float, float] | None = None
     hold_mouth_mm: tuple[float, float] | None = None
     mouth_stiffness: tuple[float, float, float] | None = None
+    hold_mouth_at_flow_mm: tuple[float, float] | None = None
     spring_rate: float = 0.0
     flow_rounds: int = 0
     flow_levels: int = 1
@@ -314,6 +321,11 @@ class Schedule:
                              f"{self.jaw_search_deg}")
         if self.lid_search_deg is not None and not 0.0 < float(self.lid_search_deg) <= 120.0:
             raise ValueError(f"lid_search_deg must be null or an angle in (0, 120] degrees, got {self.lid_search_deg}")
+        if self.hold_mouth_at_flow_mm is not None and (
+                len(self.hold_mouth_at_flow_mm) != 2
+                or not 0.0 <= float(self.hold_mouth_at_flow_mm[0]) < float(self.hold_mouth_at_flow_mm[1])):
+            raise ValueError(f"hold_mouth_at_flow_mm must be null or two distances 0 <= held < free (mm), got "
+                             f"{self.hold_mouth_at_flow_mm}")
         if self.jaw_lips_mm is not None and (len(self.jaw_lips_mm) != 2
                                              or not -30.0 <= float(self.jaw_lips_mm[0]) <= 0.0
                                              <= float(self.jaw_lips_mm[1]) <= 30.0):
@@ -458,6 +470,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
         if schedule.holds and not warmup:  # the first flow stage tells what moves
             hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage", mask_texture, release)
+            if flow_levels == 1:
+                hold = hold_mouth_at_flow(hold, mesh, schedule, mask_texture, progress, "flow")
     if warmup:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
@@ -484,6 +498,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
             # the hold stays: the next level's springs pull back what this stage slides in the held parts
             mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage,
                               f"flow{level + 1}")
+            if hold is not None and level == flow_levels - 1:
+                hold = hold_mouth_at_flow(hold, mesh, schedule, mask_texture, progress, f"flow{level + 1}")
         mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter, switches,
                                      schedule, schedule.pool(level), hold=hold, level=level, **common)
         entry["seconds"] = round(entry["seconds"] + refine_s, 3)
@@ -582,6 +598,20 @@ def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, tar
     if schedule.spring_rate > 0:
         progress(f"springs: {len(hold.edges)} edges kept at the start's lengths, rate {schedule.spring_rate:g}")
     return hold
+
+
+def hold_mouth_at_flow(hold: TangentialHold, mesh: TexturedMesh, schedule: Schedule, mask_texture: torch.Tensor,
+                       progress: Callable[[str], None], stage: str) -> TangentialHold:
+    """``hold`` anchored around the mouth where the last flow stage (``stage``) put ``mesh``
+    (``schedule.hold_mouth_at_flow_mm``; the hold unchanged when that is None)."""
+    if schedule.hold_mouth_at_flow_mm is None:
+        return hold
+    from gpja.register.flow import socket_vertices
+
+    near = 1.0 - mouth_factor(mesh.V, socket_vertices(mesh, mask_texture), tuple(schedule.hold_mouth_at_flow_mm))
+    progress(f"hold: {np.mean(near > 0):.0%} of the vertices anchored where {stage} put the mouth "
+             f"({np.mean(near >= 1):.0%} held fully)")
+    return hold.reanchored(mesh.V, mesh.F, near)
 
 
 def jaw_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,

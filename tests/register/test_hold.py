@@ -167,6 +167,30 @@ def test_a_hold_released_around_the_mouth_multiplies_its_weights():
     np.testing.assert_allclose(dx[mesh.V[:, 0] >= 6.0], [[-0.1, 0.0, 0.0]] * int((mesh.V[:, 0] >= 6.0).sum()), atol=EXACT)
 
 
+def test_a_hold_reanchored_around_the_mouth_moves_the_start_there_and_raises_the_weights():
+    mesh = grid(8)
+    hold = TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5))
+    hold = TangentialHold(hold.start, hold.normals, np.linspace(0.0, 0.5, len(mesh.V)), 0.1, 0.3, hold.edges)
+    moved = mesh.V + np.array([0.5, -0.25, 0.0])  # where a flow stage put every vertex
+    near = 1.0 - mouth_factor(mesh.V, mesh.V[:, 0] == 0.0, (2.0, 6.0))  # the left column is the "socket"
+    again = hold.reanchored(moved, mesh.F, near)
+    on = near > 0
+    assert on.any() and (~on).any()
+    np.testing.assert_array_equal(again.start[on], moved[on])
+    np.testing.assert_array_equal(again.start[~on], hold.start[~on])
+    np.testing.assert_allclose(again.normals, hold.normals, atol=EXACT)  # the grid only slid: the same normals
+    np.testing.assert_array_equal(again.weight, np.maximum(hold.weight, near))
+    assert (again.rate, again.spring_rate) == (hold.rate, hold.spring_rate)
+    # at the flow's positions the re-anchored vertices are not pulled back, the others are
+    dx = again.correction(torch.from_numpy(moved)).numpy()
+    np.testing.assert_allclose(dx[on & (mesh.V[:, 0] < 2.0)][:, :2], 0.0, atol=EXACT)
+    assert np.abs(dx[~on]).max() > 0.0
+    # nothing near the mouth: the same hold
+    same = hold.reanchored(moved, mesh.F, np.zeros(len(mesh.V)))
+    np.testing.assert_array_equal(same.start, hold.start)
+    np.testing.assert_array_equal(same.weight, hold.weight)
+
+
 def test_one_stretched_edge_gets_its_rest_length_back_in_one_full_step():
     rest = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
     x = torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]], dtype=torch.float64)
@@ -219,7 +243,8 @@ def test_schedule_refuses_bad_springs(bad):
 @pytest.mark.parametrize("bad", [{"hold_tangential": -0.1}, {"hold_tangential": 1.0},
                                  {"hold_moved_mm": (2.0, 1.0)}, {"hold_moved_mm": (1.0,)},
                                  {"hold_gap_mm": (2.0, 0.5)}, {"hold_gap_mm": (1.0,)}, {"hold_gap_mm": (-1.0, 1.0)},
-                                 {"hold_mouth_mm": (20.0, 10.0)}, {"hold_mouth_mm": (10.0,)}, {"hold_mouth_mm": (-1.0, 5.0)}])
+                                 {"hold_mouth_mm": (20.0, 10.0)}, {"hold_mouth_mm": (10.0,)}, {"hold_mouth_mm": (-1.0, 5.0)},
+                                 {"hold_mouth_at_flow_mm": (24.0, 12.0)}, {"hold_mouth_at_flow_mm": (12.0,)}])
 def test_schedule_refuses_a_bad_hold(bad):
     with pytest.raises(ValueError, match="hold"):
         Schedule(lambdas=(10.0,), iterations=(1,), **bad)

@@ -320,6 +320,27 @@ def test_springs_alone_start_with_the_first_flow_stage_and_keep_the_sphere_spaci
     assert strain(sprung) < 0.85 * strain(free)  # measured: 0.046 -> 0.035
 
 
+def test_the_hold_anchored_at_the_flows_mouth_changes_nothing_without_a_socket():
+    """``hold_mouth_at_flow_mm`` after the only flow stage: with no socket in the mouth mask no vertex is re-anchored
+    and the registration is the one without the setting, to the bit; with the sphere's lower half as the socket the
+    log names the anchored share and the result differs."""
+    from tests.register.test_flow import FLOW_TURN_DEG, sphere_scene
+
+    template, texture, targets, _ = sphere_scene(FLOW_TURN_DEG, size=64)
+    common = dict(lambdas=(10.0,), iterations=(10,), lr_fraction=0.1, flow_rounds=1, flow_levels=1,
+                  hold_tangential=0.05)
+    runs = {}
+    for name, mask, setting in (("off", torch.ones(4, 4, 1), None), ("no socket", torch.ones(4, 4, 1), (5.0, 15.0)),
+                                ("socket", torch.cat([torch.ones(2, 4, 1), torch.zeros(2, 4, 1)]), (5.0, 15.0))):
+        messages = []
+        runs[name] = optimise(template, targets, Switches(), Schedule(**common, hold_mouth_at_flow_mm=setting),
+                              texture=texture, mask_texture=mask, progress=messages.append, progress_every=0)[0], messages
+    np.testing.assert_array_equal(runs["no socket"][0].V, runs["off"][0].V)
+    assert any("0% of the vertices anchored where flow put the mouth" in m for m in runs["no socket"][1])
+    anchored = [m for m in runs["socket"][1] if "anchored where flow put the mouth" in m]
+    assert anchored and not anchored[0].startswith("hold: 0%")
+
+
 @pytest.mark.parametrize("n_views, per_iteration", [(8, 4), (8, 3), (5, 2)])
 def test_view_cycle_draws_distinct_views_each_equally_often(n_views, per_iteration):
     cycle = ViewCycle(n_views, per_iteration, seed=3, level=1)
