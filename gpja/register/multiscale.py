@@ -224,6 +224,7 @@ class Schedule:
     jaw_search_deg: tuple[float, float] | None = None
     jaw_lips_mm: tuple[float, float] | None = None
     lid_search_deg: float | None = None
+    lip_seal: float | None = None
     flow_smoothness: float = FlowSettings.smoothness
     flow_still_mm: float = FlowSettings.still_mm
     flow_chroma: float = FlowSettings.chroma
@@ -321,6 +322,8 @@ class Schedule:
                              f"{self.jaw_search_deg}")
         if self.lid_search_deg is not None and not 0.0 < float(self.lid_search_deg) <= 120.0:
             raise ValueError(f"lid_search_deg must be null or an angle in (0, 120] degrees, got {self.lid_search_deg}")
+        if self.lip_seal is not None and not 0.0 < float(self.lip_seal) <= 1.0:
+            raise ValueError(f"lip_seal must be null or a fraction in (0, 1], got {self.lip_seal}")
         if self.hold_mouth_at_flow_mm is not None and (
                 len(self.hold_mouth_at_flow_mm) != 2
                 or not 0.0 <= float(self.hold_mouth_at_flow_mm[0]) < float(self.hold_mouth_at_flow_mm[1])):
@@ -467,7 +470,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         mesh = lids_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage)
     if flow_levels:
         before_flow = mesh
-        mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow")
+        mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow",
+                          last=flow_levels == 1)
         if schedule.holds and not warmup:  # the first flow stage tells what moves
             hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage", mask_texture, release)
             if flow_levels == 1:
@@ -497,7 +501,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if 0 < level < flow_levels:
             # the hold stays: the next level's springs pull back what this stage slides in the held parts
             mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage,
-                              f"flow{level + 1}")
+                              f"flow{level + 1}", last=level == flow_levels - 1)
             if hold is not None and level == flow_levels - 1:
                 hold = hold_mouth_at_flow(hold, mesh, schedule, mask_texture, progress, f"flow{level + 1}")
         mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter, switches,
@@ -646,9 +650,10 @@ def lids_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedul
 
 def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,
                mask_texture: torch.Tensor, render, progress: Callable[[str], None], log: RegistrationLog,
-               on_stage: Callable[[str, TexturedMesh], None] | None, name: str) -> TexturedMesh:
+               on_stage: Callable[[str, TexturedMesh], None] | None, name: str, last: bool = False) -> TexturedMesh:
     """``schedule.flow_rounds`` rounds of optical-flow matching (``gpja.register.flow``), logged and saved
-    as stage ``name``; returns the moved mesh (same topology)."""
+    as stage ``name``; returns the moved mesh (same topology). After the ``last`` flow stage, the lips are sealed
+    where the references show them closed (``schedule.lip_seal``, :mod:`gpja.register.seal`)."""
     from gpja.register.flow import align_by_flow
 
     settings = FlowSettings(rounds=int(schedule.flow_rounds), smoothness=float(schedule.flow_smoothness),
@@ -656,6 +661,11 @@ def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedul
                             cholesky=schedule.flow_cholesky)
     mesh, entry = align_by_flow(mesh, targets, texture, mask_texture, settings, render=render, progress=progress)
     log.levels.append({**entry, "stage": name})
+    if schedule.lip_seal is not None and last:
+        from gpja.register.seal import seal_lips
+
+        mesh, sealed = seal_lips(mesh, targets, mask_texture, float(schedule.lip_seal), settings.smoothness, progress)
+        log.levels.append({**sealed, "after": name})
     if on_stage is not None:
         on_stage(name, mesh)
     return mesh

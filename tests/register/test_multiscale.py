@@ -341,6 +341,24 @@ def test_the_hold_anchored_at_the_flows_mouth_changes_nothing_without_a_socket()
     assert anchored and not anchored[0].startswith("hold: 0%")
 
 
+def test_the_lips_are_sealed_after_the_last_flow_stage_only_and_skip_a_mask_without_a_mouth():
+    """``lip_seal`` on the sphere, whose mask has no socket: the seal runs once, after the last flow stage (the second
+    of two), finds no lower lip and moves nothing, so the registration is the one without the setting, to the bit."""
+    from tests.register.test_flow import FLOW_TURN_DEG, sphere_scene
+
+    template, texture, targets, _ = sphere_scene(FLOW_TURN_DEG, size=64)
+    common = dict(lambdas=(10.0, 5.0), iterations=(5, 5), lr_fraction=0.1, flow_rounds=1, flow_levels=2)
+    kwargs = dict(texture=texture, mask_texture=torch.ones(4, 4, 1), progress_every=0)
+    off, _ = optimise(template, targets, Switches(), Schedule(**common), progress=lambda s: None, **kwargs)
+    messages = []
+    on, log = optimise(template, targets, Switches(), Schedule(**common, lip_seal=0.5), progress=messages.append,
+                       **kwargs)
+    seals = [entry for entry in log.levels if entry["stage"] == "seal"]
+    assert [entry["after"] for entry in seals] == ["flow2"] and seals[0]["sealed"] == 0
+    assert sum(m.startswith("seal:") for m in messages) == 1
+    np.testing.assert_array_equal(on.V, off.V)
+
+
 @pytest.mark.parametrize("n_views, per_iteration", [(8, 4), (8, 3), (5, 2)])
 def test_view_cycle_draws_distinct_views_each_equally_often(n_views, per_iteration):
     cycle = ViewCycle(n_views, per_iteration, seed=3, level=1)
