@@ -50,13 +50,14 @@ FAR_MM = 15.0
 MIN_FACING = 0.3
 
 
-def rim_pairs(mesh: TexturedMesh, socket: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rim_pairs(mesh: TexturedMesh, socket: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The lower rim's vertices, their nearest upper-rim vertices, and the whole rim.
 
     Args:
         mesh: the registration's mesh (canonical frame, mm). socket: (n,) bool socket vertices.
     Returns:
-        lower (k,) int64, partner (k,) int64 (same order), rim (r,) int64.
+        lower (k,) int64, partner (k,) int64 (same order), rim (r,) int64, and the jaw's weight of every vertex
+        (n,) float64 (:func:`gpja.register.jaw.jaw_weights`, which splits the rim).
     Raises:
         InputError: no socket or too small a rim (:func:`gpja.register.jaw.socket_rim`).
     """
@@ -65,12 +66,12 @@ def rim_pairs(mesh: TexturedMesh, socket: np.ndarray) -> tuple[np.ndarray, np.nd
     from gpja.register.jaw import jaw_weights, socket_rim
 
     rim = socket_rim(mesh.F, socket)
-    weight = jaw_weights(mesh.V, socket, rim).weight[rim]
-    lower, upper = rim[weight > 0.5], rim[weight <= 0.5]
+    jaw = jaw_weights(mesh.V, socket, rim).weight
+    lower, upper = rim[jaw[rim] > 0.5], rim[jaw[rim] <= 0.5]
     if not len(lower) or not len(upper):
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), rim
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), rim, jaw
     partner = upper[cKDTree(mesh.V[upper]).query(mesh.V[lower])[1]]
-    return lower, partner, rim
+    return lower, partner, rim, jaw
 
 
 def longest_dark_run(dark: np.ndarray) -> int:
@@ -125,12 +126,14 @@ def seal_lips(mesh: TexturedMesh, targets, mask_texture: torch.Tensor, fraction:
     from gpja.register.flow import socket_vertices, solve_displacement
     from gpja.render import vertex_normals
 
+    from scipy.spatial import cKDTree
+
     from gpja.errors import InputError
 
     start = time.perf_counter()
     socket = socket_vertices(mesh, mask_texture)
     try:
-        lower, partner, rim = rim_pairs(mesh, socket)
+        lower, partner, rim, jaw = rim_pairs(mesh, socket)
     except InputError:  # a mask without a mouth (a template of another kind): nothing to seal
         lower = partner = rim = np.zeros(0, dtype=np.int64)
     entry = {"stage": "seal", "lower_rim": int(len(lower)), "seen": 0, "sealed": 0, "median_move_mm": 0.0,
@@ -161,14 +164,9 @@ def seal_lips(mesh: TexturedMesh, targets, mask_texture: torch.Tensor, fraction:
         progress(f"seal: the references show the mouth open at all {int(seen.sum())} seen lower-rim vertices; "
                  "nothing moved")
         return mesh, entry
-    from scipy.spatial import cKDTree
-
-    from gpja.register.jaw import jaw_weights
-
     target = np.full_like(V, np.nan)
     weight = np.zeros(len(V))
     distance = cKDTree(V[rim]).query(V)[0]
-    jaw = jaw_weights(V, socket, rim).weight
     stay = (distance > FAR_MM) | ((jaw <= 0.5) & ~socket)
     stay[np.setdiff1d(rim, lower)] = True  # the upper rim is where the lips meet: it stays, the lower one comes to it
     target[stay], weight[stay] = V[stay], 1.0

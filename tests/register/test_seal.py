@@ -77,7 +77,7 @@ def references(placed, mask, cameras, cavity: float):
 def test_rim_pairs_split_the_rim_and_pair_across_the_mouth(bust_scene, small_bust):
     placed, mask, _ = bust_scene
     socket = socket_vertices(placed, mask)
-    lower, partner, rim = rim_pairs(placed, socket)
+    lower, partner, rim, _ = rim_pairs(placed, socket)
     assert len(lower) and set(lower) <= set(rim) and set(partner) <= set(rim)
     assert not set(lower) & set(partner)
     assert np.median(placed.V[lower, 1]) < np.median(placed.V[partner, 1])
@@ -89,7 +89,7 @@ def test_an_open_mouth_is_left_open(small_bust):
     placed, mask, cameras = opened_bust(small_bust, 5.0)
     targets = references(placed, mask, cameras, cavity=0.03)
     socket = socket_vertices(placed, mask)
-    lower, partner, _ = rim_pairs(placed, socket)
+    lower, partner, _, _ = rim_pairs(placed, socket)
     before = np.linalg.norm(placed.V[partner] - placed.V[lower], axis=1)
     moved, entry = seal_lips(placed, targets, mask, 1.0, 30.0, progress=lambda s: None)
     assert entry["seen"] > 0 and entry["sealed"] == 0
@@ -102,7 +102,7 @@ def test_closed_lips_pull_the_lower_rim_up_and_leave_the_rest(bust_scene):
     placed, mask, cameras = bust_scene
     targets = references(placed, mask, cameras, cavity=0.6)
     socket = socket_vertices(placed, mask)
-    lower, partner, rim = rim_pairs(placed, socket)
+    lower, partner, rim, _ = rim_pairs(placed, socket)
     moved, entry = seal_lips(placed, targets, mask, 0.5, 30.0, progress=lambda s: None)
     assert entry["sealed"] == entry["seen"] > 0
     before = np.linalg.norm(placed.V[partner] - placed.V[lower], axis=1)
