@@ -154,6 +154,12 @@ class Schedule:
             colour constraint is on.
         jaw_lips_mm: (lo, hi) or None (off): after a turn, the lower and then the upper lip are also moved up or
             down by the lift in [lo, hi] mm that matches the references best (``gpja.register.jaw.lip_weights``).
+        jaw_shift_mm: (lo, hi) or None (the pitch alone): the jaw's forward shift (mm, lo <= 0 <= hi) is searched
+            with its pitch (``gpja.register.jaw.search_grid_2d``).
+        jaw_window_mm: None (the whole images) or a distance (mm): the jaw search scores the render in the box
+            around the start's vertices within that distance of the mouth's socket (``gpja.register.jaw.colour_score``).
+        jaw_reach_mm: None (the rig's weights) or (near, far) mm: the jaw's pose fades out between these distances
+            from the socket's rim (``gpja.register.jaw.limit_reach``).
         lid_search_deg: the largest angle (degrees) or None (off, the paper): after the jaw search and before the
             first flow stage, the upper lids are turned down over the eyeballs by the angle in [0, this] whose
             render best matches the references (beyond the paper, ``gpja.register.lids``; the rig comes from the
@@ -223,6 +229,9 @@ class Schedule:
     flow_levels: int = 1
     jaw_search_deg: tuple[float, float] | None = None
     jaw_lips_mm: tuple[float, float] | None = None
+    jaw_shift_mm: tuple[float, float] | None = None
+    jaw_window_mm: float | None = None
+    jaw_reach_mm: tuple[float, float] | None = None
     lid_search_deg: float | None = None
     lip_seal: float | None = None
     flow_smoothness: float = FlowSettings.smoothness
@@ -320,6 +329,16 @@ class Schedule:
                                                 <= float(self.jaw_search_deg[1]) <= 90.0):
             raise ValueError(f"jaw_search_deg must be null or two angles -90 <= lo <= 0 <= hi <= 90 (degrees), got "
                              f"{self.jaw_search_deg}")
+        if self.jaw_shift_mm is not None and (len(self.jaw_shift_mm) != 2
+                                              or not -30.0 <= float(self.jaw_shift_mm[0]) <= 0.0
+                                              <= float(self.jaw_shift_mm[1]) <= 30.0):
+            raise ValueError(f"jaw_shift_mm must be null or two shifts -30 <= lo <= 0 <= hi <= 30 (mm), got "
+                             f"{self.jaw_shift_mm}")
+        if self.jaw_reach_mm is not None and (len(self.jaw_reach_mm) != 2
+                                              or not 0.0 <= float(self.jaw_reach_mm[0]) < float(self.jaw_reach_mm[1])):
+            raise ValueError(f"jaw_reach_mm must be null or two distances 0 <= near < far (mm), got {self.jaw_reach_mm}")
+        if self.jaw_window_mm is not None and not 0.0 < float(self.jaw_window_mm) <= 200.0:
+            raise ValueError(f"jaw_window_mm must be null or a distance in (0, 200] mm, got {self.jaw_window_mm}")
         if self.lid_search_deg is not None and not 0.0 < float(self.lid_search_deg) <= 120.0:
             raise ValueError(f"lid_search_deg must be null or an angle in (0, 120] degrees, got {self.lid_search_deg}")
         if self.lip_seal is not None and not 0.0 < float(self.lip_seal) <= 1.0:
@@ -626,12 +645,15 @@ def jaw_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule
     from gpja.register.jaw import blend_release, search_jaw
 
     lips = None if schedule.jaw_lips_mm is None else tuple(schedule.jaw_lips_mm)
+    shift = None if schedule.jaw_shift_mm is None else tuple(schedule.jaw_shift_mm)
     mesh, entry, rig = search_jaw(mesh, targets, texture, mask_texture, tuple(schedule.jaw_search_deg), render, progress,
-                                  lips_mm=lips)
+                                  lips_mm=lips, shift_mm=shift, window_mm=schedule.jaw_window_mm,
+                                  reach_mm=None if schedule.jaw_reach_mm is None else tuple(schedule.jaw_reach_mm))
     log.levels.append(entry)
     if on_stage is not None:
         on_stage("jaw", mesh)
-    return mesh, (blend_release(rig.weight) if entry["pitch_deg"] != 0.0 else None)
+    moved = entry["pitch_deg"] != 0.0 or entry.get("shift_mm", 0.0) != 0.0
+    return mesh, (blend_release(rig.weight) if moved else None)
 
 
 def lids_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedule, texture: torch.Tensor,
