@@ -248,7 +248,8 @@ def mouth_window(V: np.ndarray, rim: np.ndarray, cameras, height: int, width: in
     """
     from scipy.spatial import cKDTree
 
-    near = np.asarray(V, dtype=np.float64)[cKDTree(np.asarray(V, dtype=np.float64)[rim]).query(V)[0] <= radius_mm]
+    V = np.asarray(V, dtype=np.float64)
+    near = V[cKDTree(V[rim]).query(V)[0] <= radius_mm]
     window = torch.zeros((len(cameras), height, width, 1))
     for b, camera in enumerate(cameras):
         xy, z = camera.project(near)
@@ -262,11 +263,12 @@ def mouth_window(V: np.ndarray, rim: np.ndarray, cameras, height: int, width: in
 
 
 def colour_score(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture: torch.Tensor,
-                 render: Callable | None = None, window_mm: float | None = None) -> Callable[[np.ndarray], float]:
+                 render: Callable | None = None, window_mm: float | None = None,
+                 rim: np.ndarray | None = None) -> Callable[[np.ndarray], float]:
     """``score(V)``: the mean absolute colour difference between ``mesh`` with vertices ``V`` (n, 3) mm, rendered
     with the shared texture under the capture's lighting, and the references, over every pixel of every view
     (``window_mm`` None) or over the mouth's window (:func:`mouth_window` of ``mesh``'s vertices within
-    ``window_mm`` of the socket's rim).
+    ``window_mm`` of the socket's rim; ``rim`` (k,) int64, :func:`socket_rim`, when the caller has it).
 
     The reference counts only where the scan covers it (the head, not the backdrop), and the mean is over the
     whole image or window, a fixed denominator: a pose that turns the chin out of the render pays for the
@@ -283,9 +285,10 @@ def colour_score(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_textur
     reference = small.images * small.coverage.clamp(0.0, 1.0)
     weight = None
     if window_mm is not None:
-        from gpja.register.flow import socket_vertices
+        if rim is None:
+            from gpja.register.flow import socket_vertices
 
-        rim = socket_rim(mesh.F, socket_vertices(mesh, mask_texture))
+            rim = socket_rim(mesh.F, socket_vertices(mesh, mask_texture))
         weight = mouth_window(mesh.V, rim, small.cameras, reference.shape[1], reference.shape[2], float(window_mm))
         weight = weight / weight.sum().clamp(min=1.0)
     topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
@@ -351,7 +354,7 @@ def search_jaw(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture:
     rig = jaw_weights(mesh.V, socket, rim)
     if reach_mm is not None:
         rig = limit_reach(rig, mesh.V, rim, reach_mm)
-    score_of = colour_score(mesh, targets, texture, mask_texture, render, window_mm)
+    score_of = colour_score(mesh, targets, texture, mask_texture, render, window_mm, rim)
     if shift_mm is None:
         found_pitch, tried = search_grid(float(range_deg[0]), float(range_deg[1]),
                                          lambda a: score_of(pose_jaw(mesh.V, rig, a)))
