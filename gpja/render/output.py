@@ -15,7 +15,7 @@ import torch
 from gpja.camera import Camera
 from gpja.render.fragments import Fragments
 from gpja.render.normals import vertex_incidence
-from gpja.render.silhouettes import face_adjacency
+from gpja.render.silhouettes import edge_candidates, face_adjacency
 
 #: The paper's render passes: shaded colour F_S, depth F_D, normals F_N, and the mouth mask (the default).
 PASSES = ("color", "depth", "normal", "mask")
@@ -40,6 +40,7 @@ class Topology:
     uv_faces: torch.Tensor | None = None
     adjacency: np.ndarray = field(default=None)  # type: ignore[assignment]
     _incidence: dict = field(default_factory=dict, init=False, repr=False)
+    _candidates: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.faces = torch.as_tensor(np.asarray(self.faces), dtype=torch.int64)
@@ -57,6 +58,12 @@ class Topology:
         """
         order = spatial_face_order(V, faces)
         return cls(np.asarray(faces)[order], None if uv_faces is None else np.asarray(uv_faces)[order])
+
+    def silhouette_candidates(self) -> np.ndarray:
+        """``edge_candidates`` of the adjacency (the edges the antialiasing searches), built once."""
+        if self._candidates is None:
+            self._candidates = edge_candidates(self.adjacency)
+        return self._candidates
 
     def incidence(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
         """``vertex_incidence`` of the faces for ``n_vertices`` vertices, built once."""

@@ -98,7 +98,7 @@ def render_views(
     pixels = frags.pixel
 
     if antialias_edges:
-        pairs = find_edge_pairs(frags, screen, faces, topo.adjacency)
+        pairs = find_edge_pairs(frags, screen, faces, topo.adjacency, topo.silhouette_candidates())
         if len(pairs.occluder):
             # rows for background pixels that silhouettes blend into, after the covered ones;
             # covered pixels are listed in increasing flat index, so a binary search finds their rows

@@ -131,49 +131,69 @@ def _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, qx, qy, va, vb, ax
     return n + 1
 
 
+def edge_candidates(adjacency: np.ndarray) -> np.ndarray:
+    """The edges a silhouette can run along, each once: every rim edge, and every interior edge from its
+    lower-numbered face, in face order.
+
+    Args:
+        adjacency: (m, 3) int64 from :func:`face_adjacency`.
+    Returns:
+        (c, 3) int64 rows ``(f, k, g)``: face ``f``'s edge ``k`` (corners k, k + 1), ``g`` the face across it
+        (-1 on the rim). Built once per topology (``Topology.silhouette_candidates``), so that each
+        rasterisation's search reads only these (half the face-edges) instead of testing all of them.
+    """
+    adj = np.asarray(adjacency, dtype=np.int64).reshape(-1, 3)
+    f = np.repeat(np.arange(len(adj), dtype=np.int64), 3).reshape(-1, 3)
+    first = (adj < 0) | (adj > f)  # row-major order of (f, k): the order the kernel visited them in
+    f_idx, k_idx = np.nonzero(first)
+    return np.ascontiguousarray(np.stack([f_idx, k_idx, adj[f_idx, k_idx]], axis=1).astype(np.int64))
+
+
 @nb.njit(cache=True, parallel=True)
-def _edge_pairs_kernel(tri_id, depth, screen, facing, faces, adj, counts, capacity, out):
+def _edge_pairs_kernel(tri_id, depth, screen, facing, faces, adj, candidates, counts, capacity, out):
     """For every view, the pixel pairs straddling a visible silhouette edge.
 
     Candidates come from the silhouette edges themselves (each edge is walked
     along the pixel rows and columns it crosses), so the work scales with the
-    outline length, not with the image area.
+    outline length, not with the image area. ``candidates`` (:func:`edge_candidates`) lists each edge once,
+    so a view only tests whether the faces on its two sides face it alike.
     """
     n_views, height, width = tri_id.shape
     for b in nb.prange(n_views):
         n = 0
         base = b * capacity
-        for f in range(faces.shape[0]):
-            for k in range(3):
-                g = adj[f, k]
-                if g >= 0 and (g < f or facing[b, g] == facing[b, f]):
-                    continue  # interior edge, or a silhouette edge already visited from g
-                va = faces[f, k]
-                vb = faces[f, (k + 1) % 3]
-                xa, ya = np.float64(screen[b, va, 0]), np.float64(screen[b, va, 1])
-                xb, yb = np.float64(screen[b, vb, 0]), np.float64(screen[b, vb, 1])
-                if screen[b, va, 2] < 1.0 or screen[b, vb, 2] < 1.0:
-                    continue
-                # horizontal pairs: rows y with the edge crossing between x and x + 1
-                if ya != yb:
-                    y0 = max(0, int(np.ceil(min(ya, yb))))
-                    y1 = min(height - 1, int(np.floor(max(ya, yb))))
-                    for y in range(y0, y1 + 1):
-                        xc = xa + (y - ya) * (xb - xa) / (yb - ya)
-                        x = int(np.floor(xc))
-                        if x < -1 or x >= width:
-                            continue
-                        n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x + 1, y, va, vb, 0, out, base, n, capacity)
-                # vertical pairs: columns x with the edge crossing between y and y + 1
-                if xa != xb:
-                    x0 = max(0, int(np.ceil(min(xa, xb))))
-                    x1 = min(width - 1, int(np.floor(max(xa, xb))))
-                    for x in range(x0, x1 + 1):
-                        yc = ya + (x - xa) * (yb - ya) / (xb - xa)
-                        y = int(np.floor(yc))
-                        if y < -1 or y >= height:
-                            continue
-                        n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x, y + 1, va, vb, 1, out, base, n, capacity)
+        for c in range(candidates.shape[0]):
+            f = candidates[c, 0]
+            g = candidates[c, 2]
+            if g >= 0 and facing[b, g] == facing[b, f]:
+                continue  # interior edge: both faces look the same way
+            k = candidates[c, 1]
+            va = faces[f, k]
+            vb = faces[f, (k + 1) % 3]
+            xa, ya = np.float64(screen[b, va, 0]), np.float64(screen[b, va, 1])
+            xb, yb = np.float64(screen[b, vb, 0]), np.float64(screen[b, vb, 1])
+            if screen[b, va, 2] < 1.0 or screen[b, vb, 2] < 1.0:
+                continue
+            # horizontal pairs: rows y with the edge crossing between x and x + 1
+            if ya != yb:
+                y0 = max(0, int(np.ceil(min(ya, yb))))
+                y1 = min(height - 1, int(np.floor(max(ya, yb))))
+                for y in range(y0, y1 + 1):
+                    xc = xa + (y - ya) * (xb - xa) / (yb - ya)
+                    x = int(np.floor(xc))
+                    if x < -1 or x >= width:
+                        continue
+                    n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x + 1, y, va, vb, 0, out, base, n, capacity)
+            # vertical pairs: columns x with the edge crossing between y and y + 1
+            if xa != xb:
+                x0 = max(0, int(np.ceil(min(xa, xb))))
+                x1 = min(width - 1, int(np.floor(max(xa, xb))))
+                for x in range(x0, x1 + 1):
+                    yc = ya + (x - xa) * (yb - ya) / (xb - xa)
+                    y = int(np.floor(yc))
+                    if y < -1 or y >= height:
+                        continue
+                    n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x, y + 1, va, vb, 1, out, base, n, capacity)
         counts[b] = n
 
 
@@ -197,22 +217,26 @@ class EdgePairs:
     axis: torch.Tensor
 
 
-def find_edge_pairs(frags: Fragments, screen: torch.Tensor, faces: torch.Tensor, adjacency: np.ndarray) -> EdgePairs:
+def find_edge_pairs(frags: Fragments, screen: torch.Tensor, faces: torch.Tensor, adjacency: np.ndarray,
+                    candidates: np.ndarray | None = None) -> EdgePairs:
     """Find the pixel pairs the antialiasing pass blends (no gradient).
 
     Uses the rasteriser's per-view face orientation (``frags.facing``); ``screen``
-    may be float32 or float64 (read as float64 by the kernels, never copied).
+    may be float32 or float64 (read as float64 by the kernels, never copied). ``candidates``:
+    :func:`edge_candidates` of ``adjacency`` when the caller keeps them (``Topology``); None builds them.
     """
     scr = np.ascontiguousarray(screen.detach().numpy())
     fcs = np.ascontiguousarray(faces.detach().numpy(), dtype=np.int64)
     facing = frags.facing
+    if candidates is None:
+        candidates = edge_candidates(adjacency)
     n_views = scr.shape[0]
     counts = np.zeros(n_views, dtype=np.int64)
     height, width = frags.tri_id.shape[1:]
     capacity = 8 * (height + width)  # a few outline lengths per view; retried if exceeded
     while True:
         out = np.empty((n_views * capacity, 6), dtype=np.int64)
-        _edge_pairs_kernel(frags.tri_id, frags.depth, scr, facing, fcs, adjacency, counts, capacity, out)
+        _edge_pairs_kernel(frags.tri_id, frags.depth, scr, facing, fcs, adjacency, candidates, counts, capacity, out)
         if counts.max() <= capacity:
             break
         capacity = int(counts.max())

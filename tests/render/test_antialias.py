@@ -20,6 +20,22 @@ def test_face_adjacency_closed_and_open():
     np.testing.assert_array_equal(open_adj, [[-1, -1, 1], [0, -1, -1]])
 
 
+def test_edge_candidates_list_every_edge_once_in_face_order():
+    from gpja.render.silhouettes import edge_candidates
+
+    # two triangles sharing edge (0, 2): face 0's edge 2 (corners 2 -> 0) meets face 1's edge 0 (0 -> 2)
+    np.testing.assert_array_equal(edge_candidates(face_adjacency(np.array([[0, 1, 2], [0, 2, 3]]))),
+                                  [[0, 0, -1], [0, 1, -1], [0, 2, 1], [1, 1, -1], [1, 2, -1]])
+    V, F = sphere(subdivisions=2)
+    adj = face_adjacency(F)
+    c = edge_candidates(adj)
+    assert len(c) == 3 * len(F) // 2  # closed surface: each edge once
+    keys = {frozenset((F[f, k], F[f, (k + 1) % 3])) for f, k, _ in c}
+    assert len(keys) == len(c)
+    assert (c[:, 2] > c[:, 0]).all() and (np.diff(c[:, 0] * 3 + c[:, 1]) > 0).all()
+    np.testing.assert_array_equal(c[:, 2], adj[c[:, 0], c[:, 1]])
+
+
 def test_blend_analytic():
     values = torch.tensor([[1.0], [0.0]], dtype=torch.float64)  # occluder 1, neighbour 0
     occ, oth = torch.tensor([0]), torch.tensor([1])
@@ -42,7 +58,7 @@ def test_edge_pairs_match_a_brute_force_scan_of_all_pixel_pairs():
     import trimesh
 
     from gpja.render import project_to_screen, rasterize_fragments
-    from gpja.render.silhouettes import _find_edge, find_edge_pairs
+    from gpja.render.silhouettes import _find_edge, edge_candidates, find_edge_pairs
     from tests.render.scenes import ring_cameras
 
     big = trimesh.creation.icosphere(subdivisions=4, radius=60)
@@ -56,6 +72,9 @@ def test_edge_pairs_match_a_brute_force_scan_of_all_pixel_pairs():
     adj = face_adjacency(F)
     pairs = find_edge_pairs(frags, screen, torch.tensor(F), adj)
     found = set(zip(pairs.occluder.tolist(), pairs.other.tolist()))
+    kept = find_edge_pairs(frags, screen, torch.tensor(F), adj, edge_candidates(adj))  # the candidates kept by a Topology
+    for a, b in zip(vars(pairs).values(), vars(kept).values()):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)  # the same pairs in the same order
     S = screen.numpy()
     # front-facing: negative signed area in y-down pixels (the rasteriser's by-product, checked here)
     tri = S[:, F]  # (B, m, 3 corners, 3)
