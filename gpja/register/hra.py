@@ -33,7 +33,7 @@ from typing import Sequence
 import torch
 
 from gpja.camera import Camera
-from gpja.render import RenderOutput, Topology, image_l1, render_views
+from gpja.render import RenderOutput, Topology, render_views
 from gpja.render.normals import tangential_part
 
 CONSTRAINTS = ("color", "depth", "normal")
@@ -66,13 +66,20 @@ class ExpressionTargets:
     coverage: torch.Tensor
     sh: torch.Tensor
 
-    def views(self, index: Sequence[int]) -> "ExpressionTargets":
+    def views(self, index: Sequence[int]) -> "ViewSubset":
         """The targets of the views ``index`` (B' view indices, in this order): a random subset per
         iteration (``Schedule.views_per_iteration``). Every loss is a mean over the pixels it counts, so
-        its scale does not depend on how many views are rendered."""
-        idx = torch.as_tensor(list(index), dtype=torch.long)
-        return ExpressionTargets([self.cameras[int(i)] for i in idx], self.images[idx], self.depth[idx],
-                                 self.normal[idx], self.coverage[idx], self.sh)
+        its scale does not depend on how many views are rendered. Nothing is copied until a consumer
+        reads a whole image (:class:`ViewSubset`)."""
+        return ViewSubset(self, torch.as_tensor(list(index), dtype=torch.long))
+
+    def rows(self, name: str, out: RenderOutput) -> torch.Tensor:
+        """Rows (R, C) of target ``name`` ("images", "depth", "normal", "coverage") at ``out``'s pixels."""
+        return out.gather(getattr(self, name))
+
+    def coverage_total(self) -> torch.Tensor:
+        """The scan's clamped coverage summed over every pixel of these views (scalar)."""
+        return self.coverage.clamp(0.0, 1.0).sum()
 
     def downsampled(self, factor: int) -> "ExpressionTargets":
         """The targets at ``1 / factor`` of the resolution (``Schedule.image_factor``): every image
@@ -104,6 +111,45 @@ class ExpressionTargets:
                                  pool(self.coverage), self.sh)
 
 
+class ViewSubset:
+    """Some views of an :class:`ExpressionTargets`, read from its tensors without copying them.
+
+    ``rows`` gathers a render's pixels straight from the full (B, H, W, C) tensors (a render of the subset
+    numbers its views 0..B'-1; row ``(b H + y) W + x`` is row ``(index[b] H + y) W + x`` of the whole), so an
+    iteration's losses copy no image: the subset of a 4-of-8-view draw was 33 MB of copies an iteration at
+    512 px. The whole-image attributes (``images``, ``depth``, ``normal``, ``coverage``) are the same
+    tensors :meth:`ExpressionTargets.views` used to build, made on first use, for any consumer that reads
+    them whole. Gathered rows and sums are the same numbers as from those copies, to the bit.
+    """
+
+    def __init__(self, parent: ExpressionTargets, index: torch.Tensor):
+        self.parent, self.index = parent, index
+        self.cameras = [parent.cameras[int(i)] for i in index]
+        self.sh = parent.sh
+        self._dense: dict[str, torch.Tensor] = {}
+
+    def _subset(self, name: str) -> torch.Tensor:
+        if name not in self._dense:
+            self._dense[name] = getattr(self.parent, name)[self.index]
+        return self._dense[name]
+
+    images = property(lambda self: self._subset("images"))
+    depth = property(lambda self: self._subset("depth"))
+    normal = property(lambda self: self._subset("normal"))
+    coverage = property(lambda self: self._subset("coverage"))
+
+    def rows(self, name: str, out: RenderOutput) -> torch.Tensor:
+        """Rows (R, C) of target ``name`` at ``out``'s pixels, read from the parent's tensor."""
+        full = getattr(self.parent, name)
+        per_view = full.shape[1] * full.shape[2]
+        pixels = out.pixels
+        return full.reshape(-1, full.shape[-1])[self.index[pixels // per_view] * per_view + pixels % per_view]
+
+    def coverage_total(self) -> torch.Tensor:
+        """The scan's clamped coverage summed over every pixel of these views (scalar)."""
+        return self.coverage.clamp(0.0, 1.0).sum()
+
+
 @dataclass(frozen=True)
 class Switches:
     """Which constraints (and the mouth mask) are used; the ablations turn them off."""
@@ -128,7 +174,7 @@ def passes_for(constraint: str, switches: Switches) -> tuple[str, ...]:
     return (constraint,)
 
 
-def pooled_color_l1(out: RenderOutput, targets: ExpressionTargets, weight_pass: str, pool: int) -> torch.Tensor:
+def pooled_color_l1(out: RenderOutput, targets: ExpressionTargets | ViewSubset, weight_pass: str, pool: int) -> torch.Tensor:
     """Mean L1 of the weighted colour after ``pool x pool`` box averaging of render and reference.
 
     The comparison at a coarser image scale (beyond the paper, off by default): a feature that is many
@@ -151,7 +197,7 @@ def pooled_color_l1(out: RenderOutput, targets: ExpressionTargets, weight_pass: 
     return diff.abs().sum() / total.clamp_min(1e-6) / 3.0
 
 
-def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTargets, switches: Switches,
+def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTargets | ViewSubset, switches: Switches,
                     color_pool: int = 1) -> torch.Tensor:
     """Mean absolute difference of one constraint over the pixels it counts.
 
@@ -168,29 +214,31 @@ def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTarge
         if color_pool > 1:
             return pooled_color_l1(out, targets, weight_pass, color_pool)
         weight = out.values[weight_pass]
-        loss = image_l1(out, "color", targets.images, weight=weight)
+        # image_l1's weighted sum, with the reference's rows gathered by the targets (no subset copied)
+        loss = ((out.values["color"] - targets.rows("images", out)).abs() * weight).sum()
         return loss / weight.detach().sum().clamp_min(1.0) / 3.0
-    target = targets.depth if constraint == "depth" else targets.normal
+    target = "depth" if constraint == "depth" else "normal"
     kappa = SILHOUETTE_DEPTH_MM if constraint == "depth" else SILHOUETTE_NORMAL
     # Antialiased values are blends with the 0 background; on thin features a pixel can give
     # weight to several neighbours, so blended coverage may leave [0, 1] (depth follows it
     # consistently, d = c * D). Un-blend where the coverage is clearly non-zero, weight by the
     # clamped coverage.
-    raw_scan = out.gather(targets.coverage)  # (R, 1)
+    raw_scan = targets.rows("coverage", out)  # (R, 1)
     scan = raw_scan.clamp(0.0, 1.0)
     valid = raw_scan.abs() > 1e-3
-    scan_value = torch.where(valid, out.gather(target) / torch.where(valid, raw_scan, torch.ones_like(raw_scan)),
+    target_rows = targets.rows(target, out)
+    scan_value = torch.where(valid, target_rows / torch.where(valid, raw_scan, torch.ones_like(raw_scan)),
                              torch.zeros_like(raw_scan))
     cover = out.values["coverage"]
-    inside = (scan * (out.values[constraint] - cover * scan_value).abs()).sum() / target.shape[-1]
+    inside = (scan * (out.values[constraint] - cover * scan_value).abs()).sum() / target_rows.shape[-1]
     missing = torch.relu(scan - cover.clamp(0.0, 1.0)).sum()
     # scan pixels outside the render's rows are wholly uncovered: a constant for the gradient
-    total = targets.coverage.clamp(0.0, 1.0).sum()
+    total = targets.coverage_total()
     outside = total - scan.sum()
     return (inside + kappa * (missing + outside.detach())) / total.clamp_min(1.0)
 
 
-def render_constraint(constraint: str, V: torch.Tensor, topology: Topology, targets: ExpressionTargets,
+def render_constraint(constraint: str, V: torch.Tensor, topology: Topology, targets: ExpressionTargets | ViewSubset,
                       switches: Switches, uv: torch.Tensor, texture: torch.Tensor, mask_texture: torch.Tensor,
                       render=None, cull_backfaces: bool = True, color_pool: int = 1) -> tuple[torch.Tensor, RenderOutput]:
     """Render what one constraint needs and return its loss and the render.

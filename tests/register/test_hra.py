@@ -166,6 +166,30 @@ def test_views_picks_the_targets_of_the_given_views_in_order():
     assert picked.sh is targets.sh
 
 
+@pytest.mark.parametrize("constraint", ["color", "depth", "normal"])
+def test_a_view_subset_scores_what_its_copied_targets_score_to_the_bit(constraint):
+    """``views`` reads the losses' pixels from the whole targets (nothing copied): the same loss and gradient as
+    from targets built of the copied views."""
+    V, topo, uv, tex, targets = setup(size=24)
+    targets = ExpressionTargets(list(targets.cameras) * 2, torch.cat([targets.images, targets.images.flip(2)]),
+                                torch.cat([targets.depth, targets.depth.flip(2)]),
+                                torch.cat([targets.normal, targets.normal.flip(2)]),
+                                torch.cat([targets.coverage, targets.coverage.flip(2)]), targets.sh)  # 4 views
+    picked = targets.views([3, 0])
+    copied = ExpressionTargets(picked.cameras, targets.images[[3, 0]], targets.depth[[3, 0]],
+                               targets.normal[[3, 0]], targets.coverage[[3, 0]], targets.sh)
+    moved = (V * torch.tensor([1.03, 0.98, 1.0])).requires_grad_(True)
+    mask = torch.ones(8, 8, 1)
+    grads = []
+    for t in (picked, copied):
+        loss = loss_of(constraint, moved, topo, uv, tex, t, Switches(), mask)
+        (grad,) = torch.autograd.grad(loss, moved)
+        grads.append((loss.detach(), grad))
+    assert float(grads[0][0]) > 1e-4
+    torch.testing.assert_close(grads[0][0], grads[1][0], rtol=0, atol=0)
+    torch.testing.assert_close(grads[0][1], grads[1][1], rtol=0, atol=0)
+
+
 def test_downsampled_targets_are_the_box_averages_a_coarser_render_makes():
     # analytic: the box average of the full-resolution targets, and the cameras resized so that a
     # point lands at (x + 0.5) / f - 0.5 of its full-resolution pixel position
