@@ -83,6 +83,37 @@ def test_ply_round_trip_exact(tmp_path):
     np.testing.assert_array_equal(F2, F)
 
 
+def test_ply_own_layout_is_read_as_trimesh_reads_it_and_other_layouts_still_read(tmp_path):
+    import trimesh
+
+    from gpja.mesh import _parse_ply_file, _read_own_ply
+
+    V = np.random.default_rng(4).normal(scale=80, size=(40, 3))
+    F = np.random.default_rng(5).integers(0, 40, size=(60, 3))
+    write_ply(tmp_path / "own.ply", V, F)
+    fast = _read_own_ply(tmp_path / "own.ply")
+    slow = trimesh.load(tmp_path / "own.ply", file_type="ply", process=False, force="mesh")
+    np.testing.assert_array_equal(fast[0], np.asarray(slow.vertices, dtype=np.float64))
+    np.testing.assert_array_equal(fast[1], np.asarray(slow.faces, dtype=np.int64))
+    # another layout (ASCII, float32) is not this reader's: trimesh reads it
+    trimesh.Trimesh(V.astype(np.float32), F, process=False).export(tmp_path / "other.ply", encoding="ascii")
+    assert _read_own_ply(tmp_path / "other.ply") is None
+    V2, F2 = _parse_ply_file(tmp_path / "other.ply")
+    np.testing.assert_allclose(V2, V, atol=1e-4)
+    np.testing.assert_array_equal(F2, F)
+    # the own layout cut short, or a quad in its face list: errors naming the file
+    data = (tmp_path / "own.ply").read_bytes()
+    (tmp_path / "short.ply").write_bytes(data[:-7])
+    with pytest.raises(InputError, match="short.ply: corrupt PLY"):
+        read_ply(tmp_path / "short.ply")
+    header_end = data.index(b"end_header\n") + len(b"end_header\n")
+    quad = bytearray(data)
+    quad[header_end + 24 * len(V)] = 4
+    (tmp_path / "quad.ply").write_bytes(bytes(quad))
+    with pytest.raises(InputError, match="quad.ply: corrupt PLY: a face"):
+        read_ply(tmp_path / "quad.ply")
+
+
 def test_ply_bad_input(tmp_path):
     (tmp_path / "empty.ply").write_bytes(b"")
     with pytest.raises(InputError, match="empty.ply: scan file is empty"):
