@@ -12,13 +12,12 @@ import io
 from pathlib import Path
 
 from gpja.io import write_text
-from gpja.report.table_model import DASH, Block, Cell, Label, Table
+from gpja.report.table_model import DASH, Block, Cell, Label, Table, label_text
 from gpja.results import TABLE_FORMATS
 
 def md_label(label: Label) -> str:
     """Markdown text of a label (pipes escaped)."""
-    text = label[0] if isinstance(label, tuple) else label
-    return text.replace("|", "\\|")
+    return label_text(label).replace("|", "\\|")
 
 
 def latex_escape(text: str) -> str:

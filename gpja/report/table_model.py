@@ -121,6 +121,11 @@ def header(name: str) -> str:
     return HEADERS[name]
 
 
+def label_text(label: Label) -> str:
+    """The plain text of a label (the first of a (text, LaTeX) pair)."""
+    return label[0] if isinstance(label, tuple) else label
+
+
 def paper_label(label: Label) -> Label:
     """The label of a row or column of published numbers."""
     if isinstance(label, tuple):

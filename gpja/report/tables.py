@@ -87,6 +87,7 @@ from gpja.report.table_model import (
     Label,
     Table,
     header,
+    label_text,
     mark_best,
     metric_cell,
     paper_label,
@@ -372,10 +373,10 @@ def ablation_table(run: Run, published: str | None = None) -> Table:
         notes.append("(paper): Table 3 of the paper (FaceScape, four unnamed subjects; no C.D. given).")
     if scored:
         notes.append("Correspondence: median and mean error against the synthetic ground truth (mm).")
-    caption = ("Ablations: geometric error (mm), C.D. (mm), PSNR (dB), SSIM and LPIPS of GPJA without each "
-               "constraint, without the flow stage (gpja-no_flow), without the tangential hold (gpja-no_hold), without the "
-               "untangling of the folds (gpja-no_untangle), without the last step onto the scan (gpja-no_snap), and with the "
-               "paper's own schedule (gpja-paper), and each variant's paired differences against GPJA.")
+    shown = [label_text(ablation_label(m)) for m in variants if m != "gpja"]
+    caption = ("Ablations: geometric error (mm), C.D. (mm), PSNR (dB), SSIM and LPIPS of GPJA"
+               + (f" and its variants ({', '.join(shown)})" if shown else "")
+               + (", and each variant's paired differences against GPJA." if versus else "."))
     return Table("ablation", caption, blocks, csv_header, csv_rows, notes)
 
 

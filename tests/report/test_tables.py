@@ -69,6 +69,11 @@ def test_ablation_table_means_bolding_and_labels(tmp_path):
     assert [r["method"] for r in rows if r["source"] == "reproduced"] == ["gpja", "gpja-no_normal"]
     assert T.default_tables(run) == ["geometry", "photometric", "ablation", "timing"]
     assert T.comparison_methods(run.methods) == ["gpja"]
+    # the caption names the variants this run has, and only those
+    assert "GPJA and its variants (w/o L_normal), and each variant's paired differences" in table.caption
+    assert "no_flow" not in table.caption and "paper" not in table.caption
+    alone = T.ablation_table(load_run(res, ["S01", "S02"], ["gpja"], [E1]))
+    assert alone.caption.endswith("SSIM and LPIPS of GPJA.")
 
 
 def test_ablation_table_gains_correspondence_columns_on_synthetic_data(tmp_path):
