@@ -127,6 +127,7 @@ class ViewSubset:
         self.cameras = [parent.cameras[int(i)] for i in index]
         self.sh = parent.sh
         self._dense: dict[str, torch.Tensor] = {}
+        self._rows: tuple[torch.Tensor, torch.Tensor] | None = None  # (a render's pixels, their rows in the parent)
 
     def _subset(self, name: str) -> torch.Tensor:
         if name not in self._dense:
@@ -141,13 +142,13 @@ class ViewSubset:
     def rows(self, name: str, out: RenderOutput) -> torch.Tensor:
         """Rows (R, C) of target ``name`` at ``out``'s pixels, read from the parent's tensor."""
         full = getattr(self.parent, name)
-        per_view = full.shape[1] * full.shape[2]
         pixels = out.pixels
-        return full.reshape(-1, full.shape[-1])[self.index[pixels // per_view] * per_view + pixels % per_view]
+        if self._rows is None or self._rows[0] is not pixels:  # once per render, whichever targets it reads
+            per_view = full.shape[1] * full.shape[2]
+            self._rows = (pixels, self.index[pixels // per_view] * per_view + pixels % per_view)
+        return full.reshape(-1, full.shape[-1])[self._rows[1]]
 
-    def coverage_total(self) -> torch.Tensor:
-        """The scan's clamped coverage summed over every pixel of these views (scalar)."""
-        return self.coverage.clamp(0.0, 1.0).sum()
+    coverage_total = ExpressionTargets.coverage_total
 
 
 @dataclass(frozen=True)
