@@ -112,6 +112,8 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja-no_untangle", "GPJA w/o untangling", "ablation", overrides=(("untangle_iterations", 0),)),
     # GPJA without the last step along the normals onto the scan: what it buys
     Method("gpja-no_snap", "GPJA w/o snap", "ablation", overrides=(("snap_mm", 0.0),)),
+    # GPJA under the template's lighting as it is, with no colour gain measured per expression: what the gain buys
+    Method("gpja-no_gain", "GPJA w/o colour gain", "ablation", overrides=(("color_gain", False),)),
     # the paper's method as published (no warm-up, one Adam, from the template): what each departure buys
     Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),

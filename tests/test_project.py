@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 import yaml
 
+from tests.configs import CONFIGS, OVERLAYS, load_config
+
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 #: Metrics of a CI-configuration run, refreshed with
@@ -48,10 +50,10 @@ def test_conda_env_mirrors_pinned_pip_set():
     assert set(pip) == declared
 
 
-@pytest.mark.parametrize("name", ["config.yaml", "ci.yaml", "facescape.yaml", "paper.yaml"])
+@pytest.mark.parametrize("name", CONFIGS)
 def test_configs_validate_against_schema(name):
     schema = yaml.safe_load((ROOT / "workflow/schemas/config.schema.yaml").read_text())
-    jsonschema.validate(yaml.safe_load((ROOT / "config" / name).read_text()), schema)
+    jsonschema.validate(load_config(name), schema)
 
 
 def test_schema_rejects_bad_config():
@@ -74,13 +76,16 @@ def copy_workflow(dst: Path) -> Path:
     return dst
 
 
-def test_dry_run_schedules_synthesis_and_checks(tmp_path):
+@pytest.mark.parametrize("name", ["config.yaml", *OVERLAYS])
+def test_dry_run_schedules_synthesis_and_checks(tmp_path, name):
+    """The default run's DAG, and an overlay's (``--configfile``, merged over the default), job by job."""
     work = copy_workflow(tmp_path)
-    out = subprocess.run([*SNAKEMAKE, "-n", "--cores", "2", "--quiet", "rules"], cwd=work,
+    extra = [] if name == "config.yaml" else ["--configfile", f"config/{name}"]
+    out = subprocess.run([*SNAKEMAKE, "-n", "--cores", "2", "--quiet", "rules", *extra], cwd=work,
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     counts = dict(re.findall(r"^(\w+)\s+(\d+)\s*$", out.stdout, re.M))
-    cfg = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    cfg = load_config(name)
     n_subjects, n_expressions = len(cfg["subjects"]), len(cfg["expressions"])
     assert int(counts["synthesize_subject"]) == n_subjects
     assert int(counts["check_expression"]) == n_subjects * n_expressions
@@ -103,6 +108,19 @@ def test_dry_run_schedules_synthesis_and_checks(tmp_path):
         assert int(counts[f"plot_{kind}"]) == n_subjects, kind
     assert int(counts["plot_ablation_normal"]) == int(counts["plot_ablation_mask"]) == len(ablations["subjects"])
     assert int(counts["make_tables"]) == int(counts["make_report"]) == 1
+
+
+def test_extended_config_is_the_bigger_run():
+    """config/extended.yaml: at least 3 subjects x 6 expressions with a jaw-sideways and a cheek-blowing one, the
+    default's method (no registration setting of its own), its own dataset so the default run's results stay."""
+    extended, default = load_config("extended.yaml"), load_config("config.yaml")
+    assert len(extended["subjects"]) >= 3 and len(extended["expressions"]) >= 6
+    assert {"5_jaw_left", "17_cheek_blowing"} <= set(extended["expressions"])
+    assert extended["registration"] == default["registration"]
+    assert extended["dataset"] != default["dataset"]
+    roots = [extended["data"][k] for k in ("images_root", "scans_root", "ground_truth_root")]
+    roots += [extended["synthetic"]["raw_root"], extended["baselines"]["nicp"]["landmarks"]]
+    assert all(root.startswith(f"data/{extended['dataset']}/") for root in roots), roots
 
 
 def test_every_job_of_the_default_dag_but_the_template_runs_on_one_thread(tmp_path):

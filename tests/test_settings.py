@@ -16,9 +16,9 @@ import yaml
 from gpja.errors import InputError
 from gpja.settings import (CONFIG_KEY, DERIVED_KEYS, HIDDEN, SECTIONS, WORKFLOW_KEYS, check_config, coerce,
                            config_key, from_section, is_settings, section_keys, settings_class, settings_section)
+from tests.configs import CONFIGS, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIGS = ["config.yaml", "ci.yaml", "facescape.yaml", "paper.yaml"]
 
 #: Per section, a valid value differing from the dataclass default for every key the section offers.
 NON_DEFAULT = {
@@ -41,7 +41,7 @@ NON_DEFAULT = {
                           "flow_levels": 2, "flow_smoothness": 12.0, "color_gradient": "tangential",
                           "flow_still_mm": 0.7, "flow_chroma": 0.5, "flow_cholesky": "supernodal", "average_iterations": 6, "views_per_iteration": [3, 2, 0, 5],
                           "image_factor": [4, 2, 1, 1], "seed": 7, "face_order": "spatial", "untangle_iterations": 9, "untangle_rings": 2,
-                          "untangle_turned": True, "snap_mm": 0.7, "snap_smoothness": 3.0},
+                          "untangle_turned": True, "snap_mm": 0.7, "snap_smoothness": 3.0, "color_gain": True},
     "registration.paper": {"lambdas": [40, 30], "iterations": [1, 2], "refine_factor": 3.0,
                            "lr_fraction": 0.7, "lr_decay": 0.2, "color_pool": [4, 1], "warmup_iterations": 5,
                            "warmup_geometry": True, "optimizer_state": "per_constraint",
@@ -49,7 +49,7 @@ NON_DEFAULT = {
                            "flow_levels": 2, "flow_smoothness": 50.0, "color_gradient": "tangential",
                            "flow_still_mm": 0.4, "flow_chroma": 2.0, "flow_cholesky": "supernodal", "average_iterations": 3, "views_per_iteration": [2, 0],
                            "image_factor": [2, 1], "seed": 3, "face_order": "spatial", "untangle_iterations": 4, "untangle_rings": 0,
-                           "untangle_turned": True, "snap_mm": 0.4, "snap_smoothness": 2.0},
+                           "untangle_turned": True, "snap_mm": 0.4, "snap_smoothness": 2.0, "color_gain": True},
     "baselines.nicp.settings": {"steps": [[0.5, 0.25, 3]], "gamma": 2.0, "max_distance_mm": 4.0,
                                 "max_normal_angle_deg": 45.0, "reject_boundary": False, "convergence_mm": 0.5,
                                 "rigid_iterations": 3, "rigid_keep": 0.5, "similarity": True,
@@ -68,7 +68,7 @@ NON_DEFAULT = {
 
 
 def load(name: str) -> dict:
-    return yaml.safe_load((ROOT / "config" / name).read_text())
+    return load_config(name)
 
 
 def schema_node(key: str) -> dict:

@@ -109,6 +109,14 @@ TEMPLATE_ALBEDO_UP_TO_SCALE = 0.01
 #: [0, 1] units.
 TEMPLATE_REFINE_CHANGE = 0.01
 
+# --- colour gain (gpja.register.gain) ---
+#: A per-channel gain measured on references that are the start's own render times that gain (the median of exact
+#: ratios; measured 9e-8), relative.
+GAIN_EXACT = 1e-5
+#: The same with the references rendered from the bust with its jaw opened 3 degrees (the mouth's pixels off;
+#: measured 0.0007), relative.
+GAIN_MISALIGNED = 0.005
+
 # --- registration, end to end ---
 #: Median error (mm) of the lower lip of a closed mouth registered from the mouth-open template at CI size
 #: (tests/test_open_to_closed.py): the default measured 1.4-2.6 mm on seeds 0-2, the paper's schedule 27-38 mm;

@@ -207,6 +207,10 @@ class Schedule:
             war between the constraints leaves the surface a little off the scan, after an unlucky draw by
             tenths of a millimetre. Needs the scan (``optimise``'s ``scan``).
         snap_smoothness: how strongly the snap's offsets follow their neighbours where no ray hit the scan.
+        color_gain: beyond the paper (False = the template's lighting as it is, the paper): before anything
+            else, the expression's colour gain per channel is measured against the start's render and multiplies
+            the lighting of every render of the registration (``gpja.register.gain``): a capture's expressions
+            differ in exposure and white balance by a few per cent. Needs the colour constraint.
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -249,6 +253,7 @@ class Schedule:
     untangle_turned: bool = False
     snap_mm: float = 0.0
     snap_smoothness: float = 1.0
+    color_gain: bool = False
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -470,6 +475,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     """
     switches.rotation()  # fails early when every constraint is off
     log = RegistrationLog()
+    if schedule.color_gain and switches.color:
+        targets = gain_stage(mesh, targets, texture, mask_texture, render, progress, log)
     # the orientation the untangling keeps (untangle_turned), carried through the refinements
     reference = None
     if schedule.untangle_turned and schedule.untangle_iterations > 0:
@@ -539,6 +546,24 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
             raise ValueError("snap_mm > 0 needs the expression's scan (optimise's scan)")
         mesh = snap_stage(mesh, scan, schedule, progress, log, on_stage)
     return mesh, log
+
+
+def gain_stage(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.Tensor, mask_texture: torch.Tensor,
+               render, progress: Callable[[str], None], log: RegistrationLog) -> ExpressionTargets:
+    """The expression's colour gain measured against ``mesh`` (``gpja.register.gain``), logged as stage
+    ``color_gain``; returns ``targets`` with the gain in its lighting (the mesh does not move)."""
+    from gpja.register.gain import MIN_PIXELS, measure_gain, with_gain
+
+    start = time.perf_counter()
+    gain, entry = measure_gain(mesh, targets, texture, mask_texture, render)
+    entry["seconds"] = round(time.perf_counter() - start, 3)
+    log.levels.append({"stage": "color_gain", **entry})
+    if entry["measured"]:
+        progress(f"colour gain: the references are {' / '.join(f'{g:.3f}' for g in gain)} times the start's render "
+                 f"(R / G / B, median over {entry['pixels']} skin pixels), {entry['seconds']:.1f} s")
+    else:
+        progress(f"colour gain: {entry['pixels']} skin pixels, fewer than {MIN_PIXELS}: the template's lighting as it is")
+    return with_gain(targets, gain)
 
 
 def snap_stage(mesh: TexturedMesh, scan: tuple[np.ndarray, np.ndarray], schedule: Schedule,
