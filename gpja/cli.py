@@ -144,8 +144,13 @@ def cmd_register(args: argparse.Namespace) -> None:
 
         on_stage = stage_writer(args.stages_dir)
     on_stage, kept = before_snap(on_stage)
-    mesh, log = register(start_mesh, mask, targets, schedule, switches, progress=lambda m: print(m, flush=True),
-                         render=render, on_stage=on_stage, orientation=template.V, scan=(data.scan.V, data.scan.F))
+    from gpja.register.gain import UnlikelyGain
+
+    try:
+        mesh, log = register(start_mesh, mask, targets, schedule, switches, progress=lambda m: print(m, flush=True),
+                             render=render, on_stage=on_stage, orientation=template.V, scan=(data.scan.V, data.scan.F))
+    except UnlikelyGain as err:  # the registration knows no files: name the expression's images here
+        raise InputError(Path(args.images_root) / args.subject / args.expression, str(err)) from err
     texture_ref = os.path.relpath(Path(args.template_dir) / "texture.png", Path(args.output).parent)
     summary = {"subject": args.subject, "expression": args.expression, "switches": switches.__dict__,
                "start": str(args.start_from) if args.start_from else "template",

@@ -21,7 +21,6 @@ lighting, as for every other method.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
 
 import numpy as np
 import torch
