@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 
 from gpja.apply import remesh as R
-from gpja.apply.remesh import (SEAM_AGREEMENT_MM, UV_OFF_ATLAS, barycentric_2d, chord_errors, common_triangulation,
+from gpja.apply.remesh import (SEAM_AGREEMENT_MM, UV_OFF_ATLAS, ChordErrorCache, barycentric_2d, chord_errors,
+                               common_triangulation,
                                UVIndex, edge_uv_midpoints, fit_triangulation, locate_uv, offsets_at_uv,
                                positions_at_uv, remesh_onto)
 from gpja.errors import InputError
 from gpja.mesh import TexturedMesh, unique_edges
-from gpja.register.remesh import refine_by_factor
+from gpja.register.remesh import refine_by_factor, split_edges
 from gpja.surface import prepare_surface
 from tests.tolerances import CLOSEST_POINT_F32_MM, EXACT_F64
 
@@ -470,6 +471,25 @@ def test_chord_errors_see_a_fold_inside_a_face_with_four_face_samples():
     assert (four >= centre_only - REMESH_EXACT_MM).all()  # the centre is still one of the samples
     with pytest.raises(ValueError):
         chord_errors(common, [bump], tangential_scale=0.0, face_samples=3)
+
+
+@pytest.mark.parametrize("scale, samples", [(None, 1), (0.25, 1), (0.25, 4)])
+def test_chord_error_cache_equals_chord_errors_as_the_triangulation_grows(common2, expression, expression_rest,
+                                                                          scale, samples):
+    # fit_triangulation's rounds: the cache recomputes only the edges of the faces each split made, and must give
+    # the full computation's errors to the bit, seams (the sphere's) included
+    meshes = {"bump": bumped(expression_rest), "affine": expression}
+    cache = ChordErrorCache(meshes, scale, samples)
+    common = common2
+    for _ in range(3):
+        errors = cache.errors(common)
+        np.testing.assert_array_equal(errors, chord_errors(common, meshes, tangential_scale=scale, face_samples=samples))
+        split = errors > np.quantile(errors, 0.8)
+        assert split.any()
+        common = split_edges(common, split)[0]
+    # a mesh that did not grow from the last one is computed afresh
+    np.testing.assert_array_equal(cache.errors(common2),
+                                  chord_errors(common2, meshes, tangential_scale=scale, face_samples=samples))
 
 
 # --- 7. fit_triangulation ---------------------------------------------------------------------------------
