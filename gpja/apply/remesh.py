@@ -418,17 +418,13 @@ class ChordErrorCache:
         previous = self._common
         grown = previous is not None and len(common.V) >= len(previous.V) and \
             np.array_equal(common.V[: len(previous.V)], previous.V)
-        n = len(common.V)
-        fresh = np.ones(len(edges), dtype=bool)
-        if grown and n ** 3 < 2 ** 62:
-            face_key = (common.F[:, 0].astype(np.int64) * n + common.F[:, 1]) * n + common.F[:, 2]
-            old_key = (previous.F[:, 0].astype(np.int64) * n + previous.F[:, 1]) * n + previous.F[:, 2]
-            made = ~np.isin(face_key, old_key)  # faces the last split made
-            fresh[:] = False
-            fresh[face_edge[made].ravel()] = True
-        else:
-            grown = False
         first = len(previous.V) if grown else 0
+        if grown:  # split_edges keeps every unsplit face; each face it makes has one of the vertices it appends
+            fresh = np.zeros(len(edges), dtype=bool)
+            fresh[face_edge[(common.F >= first).any(axis=1)].ravel()] = True
+        else:
+            fresh = np.ones(len(edges), dtype=bool)
+        n = len(common.V)
         mid_uv = edge_uv_midpoints(common)
         worst = np.zeros(len(edges))
         for name, mesh in self.meshes.items():
