@@ -88,7 +88,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
-    from gpja.cli import limit_threads
+    from gpja.threads import limit_threads
 
     limit_threads(args.threads)
     systems = {f"flow_{n // 1000}K": flow_system(n) for n in (16002, 40005, 100013)}

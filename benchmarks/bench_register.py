@@ -130,7 +130,7 @@ def main() -> None:
     from gpja.register.hra import Switches
 
     if args.threads:
-        from gpja.cli import limit_threads
+        from gpja.threads import limit_threads
 
         limit_threads(args.threads)
     from gpja.register.multiscale import Schedule

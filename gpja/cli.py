@@ -275,14 +275,15 @@ def cmd_tables(args: argparse.Namespace) -> None:
 
 def cmd_figure(args: argparse.Namespace) -> None:
     from gpja.data.source import DataSource
-    from gpja.render import resolve_backend
     from gpja.report.figures import FigureRequest, FigureSettings, RunFiles, make_figure
     from gpja.results import Layout
 
+    # the backend is resolved when a figure renders (FigureRequest.render): figures drawn from saved files alone
+    # then never import torch
     request = FigureRequest(RunFiles(Layout(args.results), DataSource.from_args(args)), args.subject,
                             tuple(args.methods), tuple(args.expressions),
                             FigureSettings.from_config(_settings(args.settings), "--settings"),
-                            backend=resolve_backend(args.backend))
+                            backend=args.backend)
     start = time.perf_counter()
     png, pdf = make_figure(args.kind, request, args.output)
     print(f"figure: {args.kind} of subject {args.subject} -> {png}, {pdf} ({time.perf_counter() - start:.1f} s)",
@@ -668,23 +669,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def limit_threads(n: int) -> None:
-    """Use at most ``n`` threads: jobs sharing a machine otherwise oversubscribe it (torch's
-    OpenMP workers spin while waiting, so two jobs of 2 threads on 2 cores run several times slower)."""
-    import cv2
-    import numba
-    import torch
-
-    torch.set_num_threads(n)
-    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    cv2.setNumThreads(n)  # the flow stage's DIS optical flow (gpja.register.flow)
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     if args.threads:
+        from gpja.threads import limit_threads
+
         limit_threads(args.threads)
     try:
         status = args.func(args)

@@ -35,3 +35,10 @@ def test_register_presets_are_schedules_and_paper_fast_only_adds_the_speed_lever
     assert set(added) == {"views_per_iteration", "image_factor", "face_order", "average_iterations"}
     assert schedules["paper-fast"].lambdas == schedules["paper"].lambdas
     assert schedules["paper-fast"].iterations == schedules["paper"].iterations
+
+
+def test_startup_benchmark_commands_stop_where_a_job_without_metrics_does(tmp_path):
+    # both variants must run the same command to its expected error (exit 2 -> 0), or the timing compares nothing
+    bench = load_benchmark("bench_startup")
+    lazy = bench.COMMAND.format(d=str(tmp_path))
+    assert bench.run(lazy) > 0 and bench.run(bench.EAGER + lazy) > 0

@@ -98,7 +98,8 @@ class FigureRequest:
         methods: the methods drawn (columns, or the one drawn: :attr:`method`).
         expressions: the expressions drawn (rows or columns), at least one.
         settings: the config's ``figures`` section.
-        backend: the render backend of the figure's renders (``gpja.render.BACKENDS``).
+        backend: the render backend of the figure's renders (``gpja.render.BACKENDS``; "auto" is resolved, and
+            a backend that cannot run reported, when the figure first renders).
     """
 
     files: RunFiles
@@ -115,7 +116,7 @@ class FigureRequest:
 
     @property
     def render(self) -> Callable:
-        """The backend's ``render_views`` (imports torch)."""
+        """The backend's ``render_views`` (imports torch; ``gpja.render.renderer`` resolves :attr:`backend`)."""
         from gpja.render import renderer
 
         return renderer(self.backend)
