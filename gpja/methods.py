@@ -114,6 +114,8 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja-no_snap", "GPJA w/o snap", "ablation", overrides=(("snap_mm", 0.0),)),
     # GPJA under the template's lighting as it is, with no colour gain measured per expression: what the gain buys
     Method("gpja-no_gain", "GPJA w/o colour gain", "ablation", overrides=(("color_gain", False),)),
+    # GPJA with the colour compared wherever the template renders, beyond the scan too: what the limit buys
+    Method("gpja-no_scan_color", "GPJA w/ colour beyond the scan", "ablation", overrides=(("color_scan_px", None),)),
     # the paper's method as published (no warm-up, one Adam, from the template): what each departure buys
     Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),

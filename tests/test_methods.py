@@ -24,7 +24,8 @@ def toy_baseline(template_dir, source, subject, expression, output, section, tem
 def test_registry_names_labels_and_switches():
     assert M.names("gpja") == ["gpja"]
     assert M.names("ablation") == ["gpja-no_normal", "gpja-no_depth", "gpja-no_color", "gpja-no_mask", "gpja-no_flow",
-                                   "gpja-no_hold", "gpja-no_untangle", "gpja-no_snap", "gpja-no_gain", "gpja-paper"]
+                                   "gpja-no_hold", "gpja-no_untangle", "gpja-no_snap", "gpja-no_gain", "gpja-no_scan_color",
+                                   "gpja-paper"]
     assert M.names("baseline") == ["nicp"]
     assert [M.label(m) for m in ("gpja", "nicp", "gpja-no_mask", "nphm")] == ["GPJA", "NICP", "GPJA w/o mask", "nphm"]
     assert M.method("gpja-no_depth").without == ("depth",) and M.method("gpja").without == ()
@@ -43,6 +44,11 @@ def test_registry_names_labels_and_switches():
     no_hold = M.method("gpja-no_hold")
     assert no_hold.follows_start and no_hold.ablation_label == "GPJA w/o hold"
     assert no_hold.schedule_settings(registration) == {"lambdas": [1.0], "hold_tangential": 0.0, "hold_gap_mm": [0.5, 2.0]}
+    # GPJA with the colour counted beyond the scan too: the limit off, nothing else
+    no_scan_color = M.method("gpja-no_scan_color")
+    assert no_scan_color.follows_start and no_scan_color.without == ()
+    assert no_scan_color.schedule_settings({"gpja": {"lambdas": [1.0], "color_scan_px": 3}}) == {
+        "lambdas": [1.0], "color_scan_px": None}
     assert registration["gpja"]["hold_tangential"] == 0.01  # the config is not changed
     assert M.method("gpja").schedule_settings(registration) == registration["gpja"]
     assert paper.schedule_settings(registration) == {"lambdas": [2.0]}

@@ -27,6 +27,7 @@ Choices beyond the paper's text, made deliberately:
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -44,6 +45,9 @@ COLOR_GRADIENTS = ("full", "tangential")
 SILHOUETTE_DEPTH_MM = 10.0
 #: The same for the normal constraint (units of a normal difference, per channel).
 SILHOUETTE_NORMAL = 1.0
+#: A pixel's scan coverage above this counts as covered (the targets' antialiased blends leave tiny values
+#: outside the scan's outline).
+COVERED = 1e-3
 
 
 @dataclass
@@ -57,6 +61,8 @@ class ExpressionTargets:
         normal: (B, H, W, 3) scan world normals.
         coverage: (B, H, W, 1) scan coverage in [0, 1].
         sh: (9, 3) SH lighting of the capture (``gpja.lighting`` convention).
+        color_scan_px: None = the colour constraint counts wherever the template renders (the paper); else only
+            within this many pixels of the scan's coverage (:attr:`color_weight`; ``Schedule.color_scan_px``).
     """
 
     cameras: Sequence[Camera]
@@ -65,6 +71,20 @@ class ExpressionTargets:
     normal: torch.Tensor
     coverage: torch.Tensor
     sh: torch.Tensor
+    color_scan_px: int | None = None
+
+    @functools.cached_property
+    def color_weight(self) -> torch.Tensor | None:
+        """(B, H, W, 1) float32, 1 within :attr:`color_scan_px` pixels (a square) of a pixel the scan covers at
+        all (coverage > :data:`COVERED`), else 0; None without ``color_scan_px``. Made at this resolution: a
+        downsampled level counts its own pixels."""
+        import torch.nn.functional as F
+
+        if self.color_scan_px is None:
+            return None
+        k = int(self.color_scan_px)
+        covered = (self.coverage.clamp(0.0, 1.0) > COVERED).to(torch.float32).permute(0, 3, 1, 2)
+        return F.max_pool2d(covered, 2 * k + 1, stride=1, padding=k).permute(0, 2, 3, 1).contiguous()
 
     def views(self, index: Sequence[int]) -> "ViewSubset":
         """The targets of the views ``index`` (B' view indices, in this order): a random subset per
@@ -108,7 +128,7 @@ class ExpressionTargets:
 
         cameras = [c.resized(width // factor, height // factor) for c in self.cameras]
         return ExpressionTargets(cameras, pool(self.images), pool(self.depth), pool(self.normal),
-                                 pool(self.coverage), self.sh)
+                                 pool(self.coverage), self.sh, self.color_scan_px)
 
 
 class ViewSubset:
@@ -138,6 +158,7 @@ class ViewSubset:
     depth = property(lambda self: self._subset("depth"))
     normal = property(lambda self: self._subset("normal"))
     coverage = property(lambda self: self._subset("coverage"))
+    color_weight = property(lambda self: None if self.parent.color_weight is None else self._subset("color_weight"))
 
     def rows(self, name: str, out: RenderOutput) -> torch.Tensor:
         """Rows (R, C) of target ``name`` at ``out``'s pixels, read from the parent's tensor."""
@@ -191,6 +212,8 @@ def pooled_color_l1(out: RenderOutput, targets: ExpressionTargets | ViewSubset, 
     import torch.nn.functional as F
 
     weight = out.dense(weight_pass)  # (B, H, W, 1)
+    if targets.color_weight is not None:
+        weight = weight * targets.color_weight
     render = (out.dense("color") * weight).permute(0, 3, 1, 2)
     reference = (targets.images.to(render.dtype) * weight).permute(0, 3, 1, 2)
     diff = F.avg_pool2d(render, pool, ceil_mode=True) - F.avg_pool2d(reference, pool, ceil_mode=True)
@@ -215,6 +238,8 @@ def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTarge
         if color_pool > 1:
             return pooled_color_l1(out, targets, weight_pass, color_pool)
         weight = out.values[weight_pass]
+        if targets.color_weight is not None:  # only near what the scan covers (Schedule.color_scan_px)
+            weight = weight * targets.rows("color_weight", out)
         # image_l1's weighted sum, with the reference's rows gathered by the targets (no subset copied)
         loss = ((out.values["color"] - targets.rows("images", out)).abs() * weight).sum()
         return loss / weight.detach().sum().clamp_min(1.0) / 3.0
@@ -226,7 +251,7 @@ def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTarge
     # clamped coverage.
     raw_scan = targets.rows("coverage", out)  # (R, 1)
     scan = raw_scan.clamp(0.0, 1.0)
-    valid = raw_scan.abs() > 1e-3
+    valid = raw_scan.abs() > COVERED
     target_rows = targets.rows(target, out)
     scan_value = torch.where(valid, target_rows / torch.where(valid, raw_scan, torch.ones_like(raw_scan)),
                              torch.zeros_like(raw_scan))

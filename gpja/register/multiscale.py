@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -211,6 +211,11 @@ class Schedule:
             else, the expression's colour gain per channel is measured against the start's render and multiplies
             the lighting of every render of the registration (``gpja.register.gain``): a capture's expressions
             differ in exposure and white balance by a few per cent. Needs the colour constraint.
+        color_scan_px: beyond the paper (None = the colour counts wherever the template renders, the paper): the
+            colour constraint counts only within this many pixels of the scan's coverage in each compared image
+            (``ExpressionTargets.color_weight``). The template is a model of what the scan covers; beyond it (the
+            neck below the scan's cut, shoulders, clothes) the photographs show what the template's extension
+            does not model, and matching its colours there crumpled the neck and turned its cap over.
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -254,6 +259,7 @@ class Schedule:
     snap_mm: float = 0.0
     snap_smoothness: float = 1.0
     color_gain: bool = False
+    color_scan_px: int | None = None
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -266,6 +272,8 @@ class Schedule:
             raise ValueError(f"iterations must be >= 1 at every level, got {list(self.iterations)}")
         if any(float(lam) < 0 for lam in self.lambdas):
             raise ValueError(f"lambdas must be >= 0, got {list(self.lambdas)}")
+        if self.color_scan_px is not None and not (isinstance(self.color_scan_px, int) and self.color_scan_px >= 0):
+            raise ValueError(f"color_scan_px must be null or a whole number of pixels >= 0, got {self.color_scan_px!r}")
         if self.color_pool is not None and (len(self.color_pool) != len(self.lambdas)
                                             or any(int(p) < 1 for p in self.color_pool)):
             raise ValueError(f"color_pool needs one entry >= 1 per level ({len(self.lambdas)}), "
@@ -475,6 +483,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     """
     switches.rotation()  # fails early when every constraint is off
     log = RegistrationLog()
+    if schedule.color_scan_px is not None:  # every colour comparison below: only near what the scan covers
+        targets = replace(targets, color_scan_px=int(schedule.color_scan_px))
     if schedule.color_gain and switches.color:
         targets = gain_stage(mesh, targets, texture, mask_texture, render, progress, log)
     # the orientation the untangling keeps (untangle_turned), carried through the refinements

@@ -219,3 +219,71 @@ def test_downsampled_refuses_a_factor_that_does_not_divide_the_image():
     _, _, _, _, targets = setup(size=16)
     with pytest.raises(ValueError, match="divide the image size"):
         targets.downsampled(3)
+
+
+# --- the colour near the scan (Schedule.color_scan_px) -------------------------------------------------------
+
+def test_colour_weight_is_the_scans_coverage_grown_by_the_given_pixels():
+    # analytic: one covered pixel grows into a (2k + 1)-pixel square; none = no weight (the paper)
+    _, _, _, _, targets = setup(size=16)
+    coverage = torch.zeros(2, 16, 16, 1)
+    coverage[0, 5, 9] = 0.4
+    coverage[1, 0, 0] = 1e-4  # an antialiasing crumb: not covered
+    grown = ExpressionTargets(targets.cameras, targets.images, targets.depth, targets.normal, coverage, targets.sh, 2)
+    weight = grown.color_weight
+    assert weight.shape == (2, 16, 16, 1)
+    expected = torch.zeros(2, 16, 16, 1)
+    expected[0, 3:8, 7:12] = 1.0
+    torch.testing.assert_close(weight, expected, rtol=0, atol=0)
+    assert targets.color_weight is None
+    one = ExpressionTargets(targets.cameras, targets.images, targets.depth, targets.normal, coverage, targets.sh, 0)
+    assert float(one.color_weight.sum()) == 1.0  # k = 0: the covered pixels alone
+
+
+def test_colour_near_the_scan_drops_the_pixels_away_from_it_and_keeps_the_rest():
+    V, topo, uv, tex, targets = setup()
+    moved = (V * torch.tensor([1.05, 0.97, 1.0])).requires_grad_(True)
+    mask = torch.ones(8, 8, 1)
+    plain = loss_of("color", moved, topo, uv, tex, targets, Switches(), mask)
+    # identity: a scan covering every pixel, grown or not, weighs every pixel as the paper does
+    whole = ExpressionTargets(targets.cameras, targets.images, targets.depth, targets.normal,
+                              torch.ones_like(targets.coverage), targets.sh, 3)
+    torch.testing.assert_close(loss_of("color", moved, topo, uv, tex, whole, Switches(), mask), plain, rtol=0, atol=0)
+    # a scan covering only the images' left halves: the right halves' differences count no more
+    left = torch.zeros_like(targets.coverage)
+    left[:, :, :20] = 1.0
+    half = ExpressionTargets(targets.cameras, targets.images, targets.depth, targets.normal, left, targets.sh, 3)
+    wrong = targets.images.clone()
+    wrong[:, :, 24:] = 1.0 - wrong[:, :, 24:]  # beyond 20 + 3 px: a different picture
+    right_wrong = ExpressionTargets(targets.cameras, wrong, targets.depth, targets.normal, left, targets.sh, 3)
+    torch.testing.assert_close(loss_of("color", moved, topo, uv, tex, right_wrong, Switches(), mask),
+                               loss_of("color", moved, topo, uv, tex, half, Switches(), mask), rtol=0, atol=0)
+    # gradient: what the right halves show does not move a vertex either
+    grads = [torch.autograd.grad(loss_of("color", moved, topo, uv, tex, t, Switches(), mask), moved)[0]
+             for t in (half, right_wrong)]
+    assert float(grads[0].abs().sum()) > 0
+    torch.testing.assert_close(grads[0], grads[1], rtol=0, atol=0)
+
+
+def test_colour_weight_follows_the_views_and_the_downsampling():
+    _, _, _, _, targets = setup(size=32)
+    left = torch.zeros_like(targets.coverage)
+    left[0, :, :10] = 1.0
+    grown = ExpressionTargets(targets.cameras, targets.images, targets.depth, targets.normal, left, targets.sh, 1)
+    picked = grown.views([1, 0])
+    torch.testing.assert_close(picked.color_weight[1], grown.color_weight[0], rtol=0, atol=0)
+    half = grown.downsampled(2)
+    assert half.color_scan_px == 1
+    # made at the coarser level's own pixels: the pooled coverage's first 5 columns, grown by one
+    assert half.color_weight.shape == (2, 16, 16, 1)
+    assert float(half.color_weight[0, :, :6].min()) == 1.0 and float(half.color_weight[0, :, 6:].max()) == 0.0
+
+
+def test_schedule_checks_the_colour_scan_pixels():
+    from gpja.register.multiscale import Schedule
+
+    assert Schedule(lambdas=(1.0,), iterations=(1,)).color_scan_px is None  # the paper
+    assert Schedule(lambdas=(1.0,), iterations=(1,), color_scan_px=3).color_scan_px == 3
+    for bad in (-1, 2.5):
+        with pytest.raises(ValueError, match="color_scan_px"):
+            Schedule(lambdas=(1.0,), iterations=(1,), color_scan_px=bad)
