@@ -6,7 +6,11 @@ The command is ``gpja --threads 1 tables`` on an empty results folder: it parses
 threads, looks for the first metrics file and stops with an error (exit status 2), as a job that reads JSON and
 writes tables would up to its real work.
 
-Prints JSON: the median seconds of each over ``--repeats``, their difference and ratio.
+A second pair times Open3D's import in a job that queries a surface (a registration, a metrics job, NICP):
+``gpja.surface.load_open3d`` (its visualisation package, with plotly and dash, deferred; the default) against
+``import open3d``, each followed by one closest-point query, fresh interpreters alternating with the first pair.
+
+Prints JSON: the median seconds of each over ``--repeats``, their differences and ratios.
 Usage: python benchmarks/bench_startup.py [--repeats 7]
 """
 from __future__ import annotations
@@ -27,6 +31,12 @@ COMMAND = ("import sys; from gpja.cli import main; "
            "sys.exit(0 if status == 2 else 1)")
 
 
+#: A job that queries a surface, with Open3D's visualisation deferred (the default) and imported (before it).
+QUERY = ("import numpy as np; from gpja.surface import closest_points, prepare_surface; "
+         "closest_points(prepare_surface(np.eye(3), np.array([[0, 1, 2]])), np.zeros((1, 3)))")
+OPEN3D = {"deferred": QUERY, "plain": "import open3d; " + QUERY}
+
+
 def run(code: str) -> float:
     start = time.perf_counter()
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
@@ -39,7 +49,7 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         lazy = COMMAND.format(d=folder)
-        codes = {"lazy": lazy, "eager": EAGER + lazy}
+        codes = {"lazy": lazy, "eager": EAGER + lazy, **OPEN3D}
         run(codes["eager"])  # warm the file cache once
         times: dict[str, list[float]] = {name: [] for name in codes}
         for _ in range(args.repeats):
@@ -50,7 +60,11 @@ def main() -> None:
                       "repeats": args.repeats,
                       "lazy_s": round(median["lazy"], 3), "eager_s": round(median["eager"], 3),
                       "saved_s": round(median["eager"] - median["lazy"], 3),
-                      "ratio": round(median["lazy"] / median["eager"], 3)}, indent=1))
+                      "ratio": round(median["lazy"] / median["eager"], 3),
+                      "open3d": {"command": "a closest-point query in a fresh interpreter",
+                                 "deferred_s": round(median["deferred"], 3), "plain_s": round(median["plain"], 3),
+                                 "saved_s": round(median["plain"] - median["deferred"], 3),
+                                 "ratio": round(median["deferred"] / median["plain"], 3)}}, indent=1))
 
 
 if __name__ == "__main__":

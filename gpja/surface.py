@@ -25,6 +25,9 @@ Conventions:
 """
 from __future__ import annotations
 
+import importlib
+import sys
+import types
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,9 +112,46 @@ def rim(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 # --- closest points -----------------------------------------------------------------------------
 
+class _DeferredPackage(types.ModuleType):
+    """A placeholder in ``sys.modules`` for a package not yet imported: the first attribute it does not have
+    imports the real package (which replaces it in ``sys.modules`` and on its parent) and reads it there."""
+
+    def __getattr__(self, name: str):
+        sys.modules.pop(self.__name__, None)
+        real = importlib.import_module(self.__name__)  # also binds it on the parent package
+        self.__dict__.update(real.__dict__)
+        return getattr(real, name)
+
+
+def load_open3d():
+    """The ``open3d`` module, imported without its visualisation package until something uses it.
+
+    ``import open3d`` imports ``open3d.visualization``, whose web viewer imports plotly and dash: 0.55 of
+    the 0.95 s the import takes, in every job that queries a surface (``benchmarks/bench_startup.py``).
+    gpja uses Open3D's ray-casting scene alone, so ``open3d.visualization`` is first registered as a
+    :class:`_DeferredPackage` that imports the real one on first use. Should Open3D's layout not allow it
+    (another version), the plain import serves.
+    """
+    if "open3d" in sys.modules:
+        return sys.modules["open3d"]
+    name = "open3d.visualization"
+    placeholder = _DeferredPackage(name)
+    sys.modules[name] = placeholder  # `import open3d.visualization` in open3d's __init__ finds it there
+    try:
+        import open3d
+    except Exception:
+        for module in [m for m in sys.modules if m == "open3d" or m.startswith("open3d.")]:
+            del sys.modules[module]
+        import open3d  # noqa: F811: the plain import, visualisation and all
+        return open3d
+    if sys.modules.get(name) is placeholder:
+        open3d.visualization = placeholder
+    return open3d
+
+
 def raycasting_scene(V: np.ndarray, F: np.ndarray):
     """An Open3D ``RaycastingScene`` of the triangle mesh ``V (n, 3)``, ``F (m, 3)`` (stored as float32, uint32)."""
-    import open3d as o3d
+    o3d = load_open3d()
 
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(V, dtype=np.float32)),
@@ -183,7 +223,7 @@ def prepare_surface(V: np.ndarray, F: np.ndarray, origin: np.ndarray | None = No
         find_boundary: False for a surface whose rim no rule looks at: every edge counts as
             closed, saving the edge search.
     """
-    import open3d as o3d
+    o3d = load_open3d()
 
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
@@ -202,7 +242,7 @@ def prepare_surface(V: np.ndarray, F: np.ndarray, origin: np.ndarray | None = No
 
 def closest_points(surface: Surface, P: np.ndarray) -> ClosestPoints:
     """Closest points on ``surface`` of the query points ``P (q, 3)`` float64 mm."""
-    import open3d as o3d
+    o3d = load_open3d()
 
     P = np.asarray(P, dtype=np.float64)
     query = o3d.core.Tensor(np.ascontiguousarray(P - surface.origin, dtype=np.float32))

@@ -42,3 +42,10 @@ def test_startup_benchmark_commands_stop_where_a_job_without_metrics_does(tmp_pa
     bench = load_benchmark("bench_startup")
     lazy = bench.COMMAND.format(d=str(tmp_path))
     assert bench.run(lazy) > 0 and bench.run(bench.EAGER + lazy) > 0
+
+
+def test_startup_benchmark_open3d_pair_runs_the_same_query():
+    # the pair differs only in the plain import; both must run their query (run() raises on a failed one)
+    bench = load_benchmark("bench_startup")
+    assert bench.OPEN3D["plain"].endswith(bench.OPEN3D["deferred"])
+    assert all(bench.run(code) > 0 for code in bench.OPEN3D.values())

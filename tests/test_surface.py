@@ -8,6 +8,7 @@ import trimesh
 from gpja.surface import (
     coincident_vertex_ids,
     interpolate,
+    load_open3d,
     open_edges,
     prepare_surface,
     rim,
@@ -183,3 +184,42 @@ def test_vertex_normals_of_an_isolated_vertex_are_zero():
     V, F = octahedron()
     V = np.vstack([V, [5.0, 5.0, 5.0]])
     assert not vertex_normals(V, F)[-1].any()
+
+
+# --- load_open3d ----------------------------------------------------------------------------------------------
+
+_LOAD_OPEN3D = r"""
+import json, sys
+from gpja.surface import closest_points, load_open3d, prepare_surface
+import numpy as np
+o3d = load_open3d()
+V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+hit = closest_points(prepare_surface(V, np.array([[0, 1, 2]])), np.array([[0.25, 0.25, 2.0]]))
+before = {m: m in sys.modules for m in ("plotly", "dash")}
+deferred = type(sys.modules["open3d.visualization"]).__name__
+draw = o3d.visualization.draw_plotly.__name__  # the first use imports the real package
+print(json.dumps({"before": before, "deferred": deferred, "draw": draw,
+                  "after": type(sys.modules["open3d.visualization"]).__name__, "point": hit.point.tolist()}))
+"""
+
+
+def test_load_open3d_defers_the_visualisation_package_until_it_is_used():
+    """A fresh interpreter: queries work with neither plotly nor dash imported, and the first use of
+    ``open3d.visualization`` imports the real package."""
+    import json
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", _LOAD_OPEN3D], capture_output=True, text=True, check=True)
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    assert got["before"] == {"plotly": False, "dash": False}
+    assert got["deferred"] == "_DeferredPackage"
+    assert got["draw"] == "draw_plotly"
+    assert got["after"] == "module"
+    np.testing.assert_allclose(got["point"], [[0.25, 0.25, 0.0]], atol=CLOSEST_POINT_F32_MM)
+
+
+def test_load_open3d_returns_an_open3d_already_imported():
+    import open3d
+
+    assert load_open3d() is open3d

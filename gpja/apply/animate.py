@@ -163,7 +163,7 @@ def render_frames(frames: Sequence[np.ndarray], F: np.ndarray, UV: np.ndarray, F
     from tqdm import tqdm
 
     from gpja.metrics.photometric import render_with_texture
-    from gpja.render import render_views
+    from gpja.render import Topology, render_views
 
     if len(frames) == 0:
         raise ValueError("no frame to render")
@@ -181,9 +181,10 @@ def render_frames(frames: Sequence[np.ndarray], F: np.ndarray, UV: np.ndarray, F
     # in a log file (no terminal) a line every 10 s, not one per frame
     bar = tqdm(frames, desc="rendering frames", unit="frame", disable=not progress,
                mininterval=0.1 if sys.stderr.isatty() else 10.0)
+    topology = Topology(F, F_uv)  # every frame has these faces: their adjacency is built once
     for i, V in enumerate(bar):
         mesh = TexturedMesh(np.asarray(V, dtype=np.float64), F, UV, F_uv)
-        color = render_with_texture(mesh, texture, cameras, sh, keep)
+        color = render_with_texture(mesh, texture, cameras, sh, keep, topology)
         out[i] = np.clip(color + bg * (1.0 - keep.coverage), 0.0, 1.0)
     return out
 

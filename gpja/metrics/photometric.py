@@ -204,7 +204,7 @@ def check_photometric_mesh(mesh: TexturedMesh, source: str | Path) -> None:
 
 
 def render_with_texture(mesh: TexturedMesh, texture: np.ndarray, cameras: Sequence[Camera],
-                        sh: np.ndarray | torch.Tensor, render=None) -> np.ndarray:
+                        sh: np.ndarray | torch.Tensor, render=None, topology=None) -> np.ndarray:
     """Render a textured mesh into every view ("color" pass, black background).
 
     Args:
@@ -213,13 +213,15 @@ def render_with_texture(mesh: TexturedMesh, texture: np.ndarray, cameras: Sequen
         cameras: B undistorted cameras of one image size (H, W).
         sh: (9, 3) SH lighting.
         render: a backend's ``render_views`` (``gpja.render.renderer``); None = the CPU renderer.
+        topology: ``gpja.render.Topology(mesh.F, mesh.F_uv)`` when the caller renders one triangulation
+            many times (its face adjacency takes longer to build than a frame to render); None = built here.
     Returns:
         (B, H, W, 3) float32 in [0, 1] (shading above 1 is clipped).
     """
     from gpja.render import Topology, render_views
 
     render = render or render_views
-    topology = Topology(mesh.F, mesh.F_uv)
+    topology = Topology(mesh.F, mesh.F_uv) if topology is None else topology
     with torch.no_grad():
         out = render(torch.as_tensor(mesh.V, dtype=torch.float32), topology, cameras, passes=("color",),
                      uv=torch.as_tensor(mesh.UV, dtype=torch.float32),

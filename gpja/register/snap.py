@@ -26,7 +26,7 @@ import scipy.sparse as sp
 from gpja.cholesky import factorize
 from gpja.mesh import TexturedMesh
 from gpja.register.laplacian import uniform_laplacian
-from gpja.surface import bounding_box_centre, raycasting_scene, vertex_normals
+from gpja.surface import bounding_box_centre, load_open3d, raycasting_scene, vertex_normals
 
 #: A hit counts only on a scan face whose normal is within about 60 degrees of the vertex's normal.
 MIN_FACING = 0.5
@@ -46,7 +46,7 @@ def normal_offsets(V: np.ndarray, normals: np.ndarray, scan_V: np.ndarray, scan_
         offsets: (n,) float64, mm, ``V + offsets * normals`` is on the scan (0 where no hit);
         hit: (n,) bool, a facing scan face lies within ``max_mm`` along the normal (either way).
     """
-    import open3d as o3d
+    o3d = load_open3d()
 
     origin = bounding_box_centre(scan_V)
     scene = raycasting_scene(np.asarray(scan_V, dtype=np.float64) - origin, scan_F)

@@ -46,7 +46,7 @@ class Fragments:
 
 
 def rasterize_fragments(screen: torch.Tensor, faces: torch.Tensor, height: int, width: int,
-                        cull_backfaces: bool = False) -> Fragments:
+                        cull_backfaces: bool = False, visit: tuple[np.ndarray, np.ndarray] | None = None) -> Fragments:
     """Rasterise all views, then compute differentiable barycentrics of covered pixels.
 
     Args:
@@ -54,11 +54,12 @@ def rasterize_fragments(screen: torch.Tensor, faces: torch.Tensor, height: int, 
         faces: (m, 3) int64 vertex indices.
         height, width: image size in pixels.
         cull_backfaces: drop triangles facing away from each camera.
+        visit: the order the rasteriser visits the faces in (``rasterize_with_facing``; the same output).
     """
     n_views, n_vertices, _ = screen.shape
     screen_np = screen.detach().numpy()  # CPU only: the barycentric op below is a numba kernel
     fcs = np.ascontiguousarray(faces.detach().numpy(), dtype=np.int64)
-    tri_id, depth, facing = rasterize_with_facing(screen_np, fcs, height, width, cull_backfaces)
+    tri_id, depth, facing = rasterize_with_facing(screen_np, fcs, height, width, cull_backfaces, visit)
     counts = np.empty(n_views, dtype=np.int64)
     _count_covered(tri_id, counts)
     view_starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)

@@ -41,6 +41,8 @@ class Topology:
     adjacency: np.ndarray = field(default=None)  # type: ignore[assignment]
     _incidence: dict = field(default_factory=dict, init=False, repr=False)
     _candidates: np.ndarray | None = field(default=None, init=False, repr=False)
+    _visit: tuple | None = field(default=None, init=False, repr=False)
+    _visits_asked: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.faces = torch.as_tensor(np.asarray(self.faces), dtype=torch.int64)
@@ -64,6 +66,33 @@ class Topology:
         if self._candidates is None:
             self._candidates = edge_candidates(self.adjacency)
         return self._candidates
+
+    def visit_order(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The order in which the CPU renderer's rasteriser and silhouette search visit the faces and edges,
+        or None for their own order. Neither output depends on it (``gpja.render.rasterize``,
+        ``find_edge_pairs``); along a Z-order curve of the face centroids (:func:`spatial_face_order`)
+        consecutive faces are neighbours on the screen as well, so the depth buffer and the walks' vertices
+        stay in cache: at 100K vertices, 4 views at 512x512, the rasteriser takes a fifth less time and the
+        silhouette search a tenth (docs/benchmarks.md, "The rasteriser's visiting order").
+
+        Built from ``V`` (n, 3) (the positions of the render that asks) the second time a render asks: a
+        topology rendered once (a flow stage's, a metric's) does not pay for the sort (~60 ms at 100K vertices),
+        one rendered every iteration of a level does, once.
+
+        Returns:
+            ``(ids (m,) int64, faces[ids] (m, 3) int64, candidates (c, 4) int64)``: the faces in visiting order,
+            and :meth:`silhouette_candidates` sorted (stably) by their face's place in ``ids``.
+        """
+        self._visits_asked += 1
+        if self._visit is None and self._visits_asked >= 2:
+            faces = self.faces.numpy()
+            ids = spatial_face_order(V, faces)
+            place = np.empty(len(ids), dtype=np.int64)
+            place[ids] = np.arange(len(ids))
+            candidates = self.silhouette_candidates()
+            by_place = np.argsort(place[candidates[:, 0]], kind="stable")
+            self._visit = (ids, np.ascontiguousarray(faces[ids]), np.ascontiguousarray(candidates[by_place]))
+        return self._visit
 
     def incidence(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
         """``vertex_incidence`` of the faces for ``n_vertices`` vertices, built once."""

@@ -71,7 +71,8 @@ def render_views(
     height, width = cameras[0].height, cameras[0].width
     faces = topo.faces.to(V.device)
     screen = project_to_screen(V, cameras)
-    frags = rasterize_fragments(screen, faces, height, width, cull_backfaces)
+    visit = topo.visit_order(V.detach().numpy()) if V.device.type == "cpu" else None
+    frags = rasterize_fragments(screen, faces, height, width, cull_backfaces, None if visit is None else visit[:2])
 
     values: dict[str, torch.Tensor] = {}
     backgrounds: dict[str, torch.Tensor] = {}
@@ -98,7 +99,8 @@ def render_views(
     pixels = frags.pixel
 
     if antialias_edges:
-        pairs = find_edge_pairs(frags, screen, faces, topo.adjacency, topo.silhouette_candidates())
+        pairs = find_edge_pairs(frags, screen, faces, topo.adjacency,
+                                topo.silhouette_candidates() if visit is None else visit[2])
         if len(pairs.occluder):
             # rows for background pixels that silhouettes blend into, after the covered ones;
             # covered pixels are listed in increasing flat index, so a binary search finds their rows

@@ -4,7 +4,11 @@ Vertices are snapped to a fixed-point grid (``SUBPIXEL_BITS`` fractional bits)
 and coverage is decided with exact integer edge functions plus the top-left
 fill rule, so pixels on an edge shared by two triangles belong to exactly one
 of them: no pinholes, no double coverage. Depth order uses perspective-correct
-camera depth. The kernel runs in parallel over views.
+camera depth; of two faces at exactly the same depth the lower face index wins,
+so the output does not depend on the order the faces are visited in, and a caller
+may pass an order that keeps consecutive faces near each other on the screen
+(``Topology.visit_order``): the depth buffer then stays in cache. The kernel runs
+in parallel over views.
 
 Written with numba rather than taken from Open3D's ray caster because
 rebuilding a ``RaycastingScene`` for a deforming mesh every iteration is the
@@ -33,7 +37,8 @@ def _is_top_left(ax, ay, bx, by):
 
 
 @nb.njit(cache=True, parallel=True)
-def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth, facing):
+def _rasterize_kernel(screen, faces, face_ids, height, width, cull_sign, tri_id, depth, facing):
+    # faces[k] is face face_ids[k]: any order of the faces gives the same output (ties go to the lower index)
     # screen may be float32 or float64: every read is widened to float64, so the
     # result does not depend on the storage dtype (and no float64 copy is made)
     n_views, n_vertices = screen.shape[0], screen.shape[1]
@@ -47,8 +52,9 @@ def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth, fa
             fixed[b, i, 0] = np.int64(np.round(min(max(np.float64(screen[b, i, 0]), -limit), limit) * scale))
             fixed[b, i, 1] = np.int64(np.round(min(max(np.float64(screen[b, i, 1]), -limit), limit) * scale))
     for b in nb.prange(n_views):
-        for f in range(faces.shape[0]):
-            i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        for k in range(faces.shape[0]):
+            f = face_ids[k]
+            i0, i1, i2 = faces[k, 0], faces[k, 1], faces[k, 2]
             # orientation in float (the antialiasing pass's silhouette test), computed here
             # because this loop already has the face's vertices at hand
             fx0, fy0 = np.float64(screen[b, i0, 0]), np.float64(screen[b, i0, 1])
@@ -85,25 +91,41 @@ def _rasterize_kernel(screen, faces, height, width, cull_sign, tri_id, depth, fa
             bias2 = 0 if _is_top_left(x0, y0, x1, y1) else -1
             inv_area = 1.0 / float(area)
             iz0, iz1, iz2 = 1.0 / z0, 1.0 / z1, 1.0 / z2
+            # the edge functions step exactly (integers) along a row; a row's covered pixels are one run
+            # (the triangle is convex), so the row ends where the run does
+            step = np.int64(1) << SUBPIXEL_BITS
+            d0, d1, d2 = (y2 - y1) * step, (y0 - y2) * step, (y1 - y0) * step
             for py in range(ymin, ymax + 1):
                 sy = np.int64(py) << SUBPIXEL_BITS
+                sx = np.int64(xmin) << SUBPIXEL_BITS
+                w0 = (x2 - x1) * (sy - y1) - (y2 - y1) * (sx - x1)
+                w1 = (x0 - x2) * (sy - y2) - (y0 - y2) * (sx - x2)
+                w2 = (x1 - x0) * (sy - y0) - (y1 - y0) * (sx - x0)
+                entered = False
                 for px in range(xmin, xmax + 1):
-                    sx = np.int64(px) << SUBPIXEL_BITS
-                    w0 = (x2 - x1) * (sy - y1) - (y2 - y1) * (sx - x1)
-                    w1 = (x0 - x2) * (sy - y2) - (y0 - y2) * (sx - x2)
-                    w2 = (x1 - x0) * (sy - y0) - (y1 - y0) * (sx - x0)
-                    if w0 + bias0 < 0 or w1 + bias1 < 0 or w2 + bias2 < 0:
-                        continue
-                    inv_z = (w0 * iz0 + w1 * iz1 + w2 * iz2) * inv_area
-                    z = np.float32(1.0 / inv_z)  # stored and compared as float32: half the memory traffic
-                    if z < depth[b, py, px]:
-                        depth[b, py, px] = z
-                        tri_id[b, py, px] = f
+                    if ((w0 + bias0) | (w1 + bias1) | (w2 + bias2)) < 0:  # some edge function below its bias
+                        if entered:
+                            break
+                    else:
+                        entered = True
+                        inv_z = (w0 * iz0 + w1 * iz1 + w2 * iz2) * inv_area
+                        z = np.float32(1.0 / inv_z)  # stored and compared as float32: half the memory traffic
+                        held = depth[b, py, px]
+                        if z < held or (z == held and f < tri_id[b, py, px]):
+                            depth[b, py, px] = z
+                            tri_id[b, py, px] = f
+                    w0 -= d0
+                    w1 -= d1
+                    w2 -= d2
 
 
 def rasterize_with_facing(screen: np.ndarray, faces: np.ndarray, height: int, width: int,
-                          cull_backfaces: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                          cull_backfaces: bool = False, visit: tuple[np.ndarray, np.ndarray] | None = None
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`rasterize`, plus which faces look towards each camera.
+
+    ``visit``: ``(ids (m,) int64, faces[ids] (m, 3) int64)``, the order to visit the faces in (a
+    permutation; ``Topology.visit_order``), or None for their own order. The output is the same.
 
     Returns:
         tri_id: (B, H, W) int32, ``BACKGROUND`` where empty.
@@ -123,7 +145,13 @@ def rasterize_with_facing(screen: np.ndarray, faces: np.ndarray, height: int, wi
     facing = np.empty((n_views, len(faces)), dtype=np.bool_)
     # In y-down pixel coordinates a counter-clockwise (outward-facing) triangle
     # seen from the front has negative signed area.
-    _rasterize_kernel(screen, faces, height, width, -1 if cull_backfaces else 0, tri_id, depth, facing)
+    if visit is None:
+        ids, ordered = np.arange(len(faces), dtype=np.int64), faces
+    else:
+        ids, ordered = (np.ascontiguousarray(a, dtype=np.int64) for a in visit)
+        if ids.shape != (len(faces),) or ordered.shape != faces.shape:
+            raise ValueError(f"visit order for {len(ids)} faces, given {len(faces)}")
+    _rasterize_kernel(screen, ordered, ids, height, width, -1 if cull_backfaces else 0, tri_id, depth, facing)
     return tri_id, depth, facing
 
 

@@ -104,8 +104,9 @@ def _find_edge(screen, facing, b, faces, adj, f, ox, oy, qx, qy):
 
 
 @nb.njit(cache=True, inline="always")
-def _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, qx, qy, va, vb, axis, out, base, n, capacity):
-    """Record pixel pair (x, y)-(qx, qy) if edge (va, vb) is the silhouette its face walk finds."""
+def _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, qx, qy, va, vb, axis, out, base, n, capacity, row):
+    """Record pixel pair (x, y)-(qx, qy) if edge (va, vb) is the silhouette its face walk finds (``row``: the
+    edge's candidate index)."""
     height, width = tri_id.shape[1], tri_id.shape[2]
     if x < 0 or y < 0 or qx >= width or qy >= height:
         return n
@@ -128,6 +129,7 @@ def _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, qx, qy, va, vb, ax
         out[r, 3] = ea
         out[r, 4] = eb
         out[r, 5] = axis
+        out[r, 6] = row
     return n + 1
 
 
@@ -138,15 +140,18 @@ def edge_candidates(adjacency: np.ndarray) -> np.ndarray:
     Args:
         adjacency: (m, 3) int64 from :func:`face_adjacency`.
     Returns:
-        (c, 3) int64 rows ``(f, k, g)``: face ``f``'s edge ``k`` (corners k, k + 1), ``g`` the face across it
-        (-1 on the rim). Built once per topology (``Topology.silhouette_candidates``), so that each
-        rasterisation's search reads only these (half the face-edges) instead of testing all of them.
+        (c, 4) int64 rows ``(f, k, g, i)``: face ``f``'s edge ``k`` (corners k, k + 1), ``g`` the face across it
+        (-1 on the rim), ``i`` the row's own index (which :func:`find_edge_pairs` orders its pairs by, so that
+        the rows may be visited in another order: ``Topology.visit_order``). Built once per topology
+        (``Topology.silhouette_candidates``), so that each rasterisation's search reads only these (half the
+        face-edges) instead of testing all of them.
     """
     adj = np.asarray(adjacency, dtype=np.int64).reshape(-1, 3)
     f = np.repeat(np.arange(len(adj), dtype=np.int64), 3).reshape(-1, 3)
     first = (adj < 0) | (adj > f)  # row-major order of (f, k): the order the kernel visited them in
     f_idx, k_idx = np.nonzero(first)
-    return np.ascontiguousarray(np.stack([f_idx, k_idx, adj[f_idx, k_idx]], axis=1).astype(np.int64))
+    return np.ascontiguousarray(np.stack([f_idx, k_idx, adj[f_idx, k_idx], np.arange(len(f_idx))],
+                                         axis=1).astype(np.int64))
 
 
 @nb.njit(cache=True, parallel=True)
@@ -156,7 +161,8 @@ def _edge_pairs_kernel(tri_id, depth, screen, facing, faces, adj, candidates, co
     Candidates come from the silhouette edges themselves (each edge is walked
     along the pixel rows and columns it crosses), so the work scales with the
     outline length, not with the image area. ``candidates`` (:func:`edge_candidates`) lists each edge once,
-    so a view only tests whether the faces on its two sides face it alike.
+    so a view only tests whether the faces on its two sides face it alike. Each pair's column 6 is its edge's
+    candidate index, by which the caller puts the pairs in candidate order.
     """
     n_views, height, width = tri_id.shape
     for b in nb.prange(n_views):
@@ -183,7 +189,8 @@ def _edge_pairs_kernel(tri_id, depth, screen, facing, faces, adj, candidates, co
                     x = int(np.floor(xc))
                     if x < -1 or x >= width:
                         continue
-                    n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x + 1, y, va, vb, 0, out, base, n, capacity)
+                    n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x + 1, y, va, vb, 0, out, base, n, capacity,
+                               candidates[c, 3])
             # vertical pairs: columns x with the edge crossing between y and y + 1
             if xa != xb:
                 x0 = max(0, int(np.ceil(min(xa, xb))))
@@ -193,7 +200,8 @@ def _edge_pairs_kernel(tri_id, depth, screen, facing, faces, adj, candidates, co
                     y = int(np.floor(yc))
                     if y < -1 or y >= height:
                         continue
-                    n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x, y + 1, va, vb, 1, out, base, n, capacity)
+                    n = _emit(tri_id, depth, screen, facing, faces, adj, b, x, y, x, y + 1, va, vb, 1, out, base, n, capacity,
+                               candidates[c, 3])
         counts[b] = n
 
 
@@ -223,7 +231,9 @@ def find_edge_pairs(frags: Fragments, screen: torch.Tensor, faces: torch.Tensor,
 
     Uses the rasteriser's per-view face orientation (``frags.facing``); ``screen``
     may be float32 or float64 (read as float64 by the kernels, never copied). ``candidates``:
-    :func:`edge_candidates` of ``adjacency`` when the caller keeps them (``Topology``); None builds them.
+    :func:`edge_candidates` of ``adjacency`` when the caller keeps them (``Topology``), in any row order
+    (``Topology.visit_order``: the search then walks neighbouring edges one after another); None builds them.
+    Each view's pairs come out in candidate-index order, whatever order the rows were searched in.
     """
     scr = np.ascontiguousarray(screen.detach().numpy())
     fcs = np.ascontiguousarray(faces.detach().numpy(), dtype=np.int64)
@@ -235,12 +245,14 @@ def find_edge_pairs(frags: Fragments, screen: torch.Tensor, faces: torch.Tensor,
     height, width = frags.tri_id.shape[1:]
     capacity = 8 * (height + width)  # a few outline lengths per view; retried if exceeded
     while True:
-        out = np.empty((n_views * capacity, 6), dtype=np.int64)
+        out = np.empty((n_views * capacity, 7), dtype=np.int64)
         _edge_pairs_kernel(frags.tri_id, frags.depth, scr, facing, fcs, adjacency, candidates, counts, capacity, out)
         if counts.max() <= capacity:
             break
         capacity = int(counts.max())
-    out = np.concatenate([out[b * capacity : b * capacity + counts[b]] for b in range(n_views)])
+    views = [out[b * capacity : b * capacity + counts[b]] for b in range(n_views)]
+    # candidate order (stable: an edge's own pairs keep the order it emitted them in)
+    out = np.concatenate([v[np.argsort(v[:, 6], kind="stable"), :6] for v in views])
     cols = torch.from_numpy(out).to(screen.device).unbind(1)
     return EdgePairs(*cols)
 

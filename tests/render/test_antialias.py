@@ -25,15 +25,16 @@ def test_edge_candidates_list_every_edge_once_in_face_order():
 
     # two triangles sharing edge (0, 2): face 0's edge 2 (corners 2 -> 0) meets face 1's edge 0 (0 -> 2)
     np.testing.assert_array_equal(edge_candidates(face_adjacency(np.array([[0, 1, 2], [0, 2, 3]]))),
-                                  [[0, 0, -1], [0, 1, -1], [0, 2, 1], [1, 1, -1], [1, 2, -1]])
+                                  [[0, 0, -1, 0], [0, 1, -1, 1], [0, 2, 1, 2], [1, 1, -1, 3], [1, 2, -1, 4]])
     V, F = sphere(subdivisions=2)
     adj = face_adjacency(F)
     c = edge_candidates(adj)
     assert len(c) == 3 * len(F) // 2  # closed surface: each edge once
-    keys = {frozenset((F[f, k], F[f, (k + 1) % 3])) for f, k, _ in c}
+    keys = {frozenset((F[f, k], F[f, (k + 1) % 3])) for f, k, _, _ in c}
     assert len(keys) == len(c)
     assert (c[:, 2] > c[:, 0]).all() and (np.diff(c[:, 0] * 3 + c[:, 1]) > 0).all()
     np.testing.assert_array_equal(c[:, 2], adj[c[:, 0], c[:, 1]])
+    np.testing.assert_array_equal(c[:, 3], np.arange(len(c)))
 
 
 def test_blend_analytic():
@@ -75,6 +76,10 @@ def test_edge_pairs_match_a_brute_force_scan_of_all_pixel_pairs():
     kept = find_edge_pairs(frags, screen, torch.tensor(F), adj, edge_candidates(adj))  # the candidates kept by a Topology
     for a, b in zip(vars(pairs).values(), vars(kept).values()):
         torch.testing.assert_close(a, b, rtol=0, atol=0)  # the same pairs in the same order
+    shuffled = edge_candidates(adj)[np.random.default_rng(0).permutation(len(adj) * 3 // 2)]
+    searched = find_edge_pairs(frags, screen, torch.tensor(F), adj, shuffled)  # rows searched in another order
+    for a, b in zip(vars(pairs).values(), vars(searched).values()):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)  # put back in candidate order
     S = screen.numpy()
     # front-facing: negative signed area in y-down pixels (the rasteriser's by-product, checked here)
     tri = S[:, F]  # (B, m, 3 corners, 3)

@@ -35,13 +35,19 @@ def test_a_permutation_that_brings_neighbours_together():
     assert spatial_face_order(V, F[:0]).shape == (0,)
 
 
-def test_rendering_in_spatial_order_gives_the_same_images_and_gradients():
+def shuffled_sphere_scene():
+    """A sphere with its faces shuffled, texture coordinates, a random texture, 3 cameras at 64 px and random
+    weights for 7 channels of their images."""
     V, F = sphere(subdivisions=3, radius=60.0)
     F = F[np.random.default_rng(1).permutation(len(F))]
     uv = torch.tensor(spherical_uv(V), dtype=torch.float32)
     tex = torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0))
-    cams = ring_cameras(3, 64)
     weights = torch.rand(3, 64, 64, 7, generator=torch.Generator().manual_seed(2))
+    return V, F, uv, tex, ring_cameras(3, 64), weights
+
+
+def test_rendering_in_spatial_order_gives_the_same_images_and_gradients():
+    V, F, uv, tex, cams, weights = shuffled_sphere_scene()
     results = []
     for topo in (Topology(F, F), Topology.in_spatial_order(V, F, F)):
         Vt = torch.tensor(V, dtype=torch.float32, requires_grad=True)
@@ -56,6 +62,26 @@ def test_rendering_in_spatial_order_gives_the_same_images_and_gradients():
     assert (grad_a - grad_b).abs().max() <= FACE_ORDER_RELATIVE * grad_a.abs().max()
     # and it is another order: the identity would pass the comparisons above trivially
     assert not torch.equal(Topology.in_spatial_order(V, F, F).faces, torch.as_tensor(F))
+
+
+def test_the_visiting_order_is_built_at_the_second_render_and_changes_nothing():
+    V, F, uv, tex, cams, weights = shuffled_sphere_scene()
+    topo = Topology(F, F)
+    results = []
+    for _ in range(3):
+        Vt = torch.tensor(V, dtype=torch.float32, requires_grad=True)
+        out = render_views(Vt, topo, cams, ("color", "depth", "normal"), uv=uv, texture=tex,
+                           sh=torch.tensor(uniform_sh(), dtype=torch.float32), cull_backfaces=True)
+        images = torch.cat([out.dense(k) for k in ("color", "depth", "normal", "coverage")], dim=-1)
+        (images[..., :7] * weights).sum().backward()
+        results.append((images.detach(), Vt.grad, topo._visit))
+    assert results[0][2] is None and results[1][2] is not None  # built by the second render, kept after
+    ids, ordered, candidates = results[2][2]
+    assert not np.array_equal(ids, np.arange(len(F))) and np.array_equal(np.sort(ids), np.arange(len(F)))
+    np.testing.assert_array_equal(ordered, F[ids])
+    np.testing.assert_array_equal(np.sort(candidates[:, 3]), np.arange(len(candidates)))
+    for images, grad, _ in results[1:]:  # the same bits as the render in the faces' own order
+        assert torch.equal(images, results[0][0]) and torch.equal(grad, results[0][1])
 
 
 def test_the_schedule_names_a_bad_face_order():

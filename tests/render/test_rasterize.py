@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from gpja.render import project_to_screen, rasterize
+from gpja.render.rasterize import rasterize_with_facing
 from tests.render.scenes import ring_cameras, sphere
 from tests.tolerances import TRI_ID_MISMATCH
 
@@ -48,6 +49,35 @@ def test_depth_order_nearest_wins():
     tri, depth = rasterize(screen, np.array([[0, 2, 1], [3, 5, 4]]), 12, 12)
     assert (tri[0][tri[0] >= 0] == 1).all()
     assert np.allclose(depth[0][tri[0] >= 0], 50)
+
+
+def test_equal_depths_go_to_the_lower_face_index_in_any_visiting_order():
+    # the same triangle twice (exact ties), and a third in the same plane over part of it
+    xy = np.array([[2, 2], [10, 2], [2, 10.0], [2, 2], [10, 2], [2, 10.0], [4, 4], [9, 4], [4, 9.0]])
+    screen = np.concatenate([xy, np.full((9, 1), 100.0)], 1)[None]
+    faces = np.array([[3, 5, 4], [0, 2, 1], [6, 8, 7]])
+    expected = rasterize_with_facing(screen, faces, 12, 12)
+    assert 1 not in expected[0]  # face 1 is face 0 again: it never wins a pixel
+    for ids in ([2, 1, 0], [1, 2, 0], [1, 0, 2]):
+        ids = np.array(ids)
+        got = rasterize_with_facing(screen, faces, 12, 12, visit=(ids, faces[ids]))
+        for a, b in zip(got, expected):
+            np.testing.assert_array_equal(a, b)
+    assert expected[2].tolist() == [[True, True, True]]
+
+
+def test_any_visiting_order_gives_the_same_output():
+    V, F = sphere(subdivisions=3)
+    screen = project_to_screen(torch.tensor(V), ring_cameras(3, 64)).numpy()
+    F = np.concatenate([F, F[:40]])  # duplicated faces: exact ties on every pixel they cover
+    expected = rasterize_with_facing(screen, F, 64, 64, cull_backfaces=True)
+    for seed in range(3):
+        ids = np.random.default_rng(seed).permutation(len(F))
+        got = rasterize_with_facing(screen, F, 64, 64, cull_backfaces=True, visit=(ids, F[ids]))
+        for a, b in zip(got, expected):
+            np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="visit order"):
+        rasterize_with_facing(screen, F, 64, 64, visit=(np.arange(3), F[:3]))
 
 
 def test_backface_culling():

@@ -19,7 +19,7 @@ from gpja.camera import Camera
 from gpja.lighting import shade_lambertian, sh_basis
 # the scene and the normals are the shared surface layer's (re-exported for the generator's modules)
 from gpja.surface import raycasting_scene as build_scene
-from gpja.surface import vertex_normals
+from gpja.surface import load_open3d, vertex_normals
 
 #: Background colour (linear RGB) of every image.
 BACKGROUND_RGB = np.array([0.22, 0.22, 0.23])
@@ -107,7 +107,7 @@ class RayBundle:
 
 def cast(scene, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cast rays (n, 6) float32 -> t_hit (n,), primitive id (n,) int64 (-1 = miss), uv (n, 2)."""
-    import open3d as o3d
+    o3d = load_open3d()
 
     ans = scene.cast_rays(o3d.core.Tensor(rays))
     t = ans["t_hit"].numpy()
