@@ -378,6 +378,14 @@ def cmd_reparametrize(args: argparse.Namespace) -> None:
                   progress=lambda m: print(m, flush=True))
 
 
+def cmd_turns(args: argparse.Namespace) -> None:
+    from gpja.metrics.turns import count_turns
+
+    count_turns(args.artist, _named_paths(args.meshes, "--meshes"), args.order, args.template_dir, args.subject,
+                args.output, args.ground_truth_root, args.scans_root, args.template_expression,
+                progress=lambda m: print(m, flush=True))
+
+
 def _add_expression_args(p: argparse.ArgumentParser, method: str | None = None) -> None:
     """``--subject`` and ``--expression`` (and ``--method``, with this help, for a scored method's mesh)."""
     p.add_argument("--subject", required=True)
@@ -642,6 +650,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--settings", default="{}", help="JSON: the config's applications.reparam section")
     p.add_argument("--output", required=True, help="the .obj (a .json log of its checks beside it)")
     p.set_defaults(func=cmd_reparametrize)
+
+    p = sub.add_parser("turns", help="applications: the artist mesh's faces turned over between adjacent "
+                                     "expressions of the registration tree (and the ground truth's, synthetic data)")
+    p.add_argument("--subject", required=True)
+    p.add_argument("--artist", required=True, help="the artist mesh (gpja artist)")
+    p.add_argument("--meshes", nargs="+", required=True,
+                   help="EXPRESSION=PATH of every re-parametrised expression of the tree (gpja reparametrize)")
+    p.add_argument("--order", required=True, help="registration_order.json (gpja order)")
+    p.add_argument("--template-dir", required=True, help="the subject's template folder (texture_observed.png)")
+    p.add_argument("--template-expression", default=None, help="the artist mesh's expression (default: the root)")
+    p.add_argument("--ground-truth-root", default=None, help="synthetic ground truth: {root}/{subject}/... (optional)")
+    p.add_argument("--scans-root", default=None, help="synthetic scans, with --ground-truth-root")
+    p.add_argument("--output", required=True, help="the counts, JSON (reparam/turns.json)")
+    p.set_defaults(func=cmd_turns)
 
     from gpja.report.figures import FIGURES
 

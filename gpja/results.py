@@ -177,6 +177,10 @@ class Layout:
         """One expression in the artist mesh's topology and UVs (``gpja reparametrize``), a .json log beside it."""
         return self.reparam_dir(subject) / f"{expression}.obj"
 
+    def reparam_turns(self, subject: str) -> Path:
+        """The artist mesh's faces turned over along the registration tree's hops (``gpja turns``), JSON."""
+        return self.reparam_dir(subject) / "turns.json"
+
     def animation(self, subject: str) -> Path:
         """The animation of the remeshed expressions (``gpja animate``); ``.gif`` when no ffmpeg is found."""
         return self.subject_dir(subject) / "animation.mp4"

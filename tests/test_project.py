@@ -206,7 +206,11 @@ def test_reference_steps_and_their_outputs_are_in_the_ci_dag(tmp_path):
     assert int(counts["texture_quality"]) == int(counts["plot_correspondence_errors"]) == n_subjects
     assert int(counts["oracle_metrics"]) == n_subjects * n_expressions
     tables = re.search(r"gpja --threads 1 tables .*", out.stdout).group(0)
-    assert "--tables geometry photometric ablation correspondence correspondence_regions position_regions texture timing" in tables
+    assert ("--tables geometry photometric ablation correspondence correspondence_regions position_regions texture turns"
+            " timing") in tables
+    assert int(counts["count_turns"]) == n_subjects
+    turns = re.search(r"gpja --threads 1 turns .*", out.stdout).group(0)
+    assert "--ground-truth-root" in turns and "--order results/" in turns
     methods = ["gpja", "nicp", *cfg["registration"]["ablations"]["variants"], "oracle"]
     assert re.search(rf"--methods {' '.join(methods)}\b", tables)
     # the template figure waits for the texture's error image
@@ -311,7 +315,7 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
             assert 400 < np.median(targets["depth"][targets["coverage"][..., 0] > 0.99]) < 800  # rig ~600 mm away
     tables = work / f"results/{cfg['dataset']}/tables"
     for name in ("geometry", "photometric", "ablation", "correspondence", "correspondence_regions", "position_regions",
-                 "texture", "timing"):
+                 "texture", "turns", "timing"):
         for suffix in ("csv", "md", "tex"):
             assert (tables / f"{name}.{suffix}").is_file(), f"{name}.{suffix}"
     assert "Oracle (ground truth)" in (tables / "photometric.md").read_text()
@@ -334,6 +338,12 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         assert log["render"]["identical"] or log["render"]["psnr_db"] >= 35.0
         carried = json.loads((subject_dir / "reparam" / f"{expression}.json").read_text())
         assert carried["distance_to_source_mm"]["max"] <= 1e-3
+    # every hop of the tree counted, by the carried meshes and by the true motion (which places every vertex)
+    turns = json.loads((subject_dir / "reparam" / "turns.json").read_text())
+    assert [(h["parent"], h["expression"]) for h in turns["hops"]] == [
+        (order["parent"][e], e) for e in order["order"] if order["parent"][e]]
+    assert turns["truth"]["vertices_placed"] == turns["truth"]["vertices"]
+    assert all(0 <= h["both"] <= min(h["turned"], h["truth_turned"]) for h in turns["hops"])
     assert (subject_dir / "S01.glb").stat().st_size > 100_000
     assert (subject_dir / "animation.mp4").stat().st_size > 1_000
     frames = np.load(subject_dir / "animation_frames.npz")

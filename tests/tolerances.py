@@ -122,3 +122,9 @@ GAIN_MISALIGNED = 0.005
 #: (tests/test_open_to_closed.py): the default measured 1.4-2.6 mm on seeds 0-2, the paper's schedule 27-38 mm;
 #: two 256^2 pixels (~2 mm each), far below the open mouth's ~20 mm.
 LOWER_LIP_CLOSED_MM = 4.0
+
+# --- metrics (the artist mesh's turned faces) ---
+#: Newton's inverse of a smooth map of space (the synthetic expressions'), mm: it reaches ~1e-12.
+MAP_INVERSE_MM = 1e-8
+#: Central-difference Jacobian of a map of space (step 1e-4 mm) against the exact one, relative.
+MAP_JACOBIAN_RELATIVE = 1e-7

@@ -96,12 +96,13 @@ from gpja.report.table_model import (
 )
 from gpja.report.tables_truth import (correspondence_regions_table, floor_note, position_regions_table, row_label,
                                      texture_table)
+from gpja.report.tables_applications import turns_table
 from gpja.report.timing import timing_table
 from gpja.results import Layout
 
 #: Every table ``gpja tables`` can write (file stems).
 TABLE_NAMES = ("geometry", "photometric", "ablation", "correspondence", "correspondence_regions", "position_regions",
-               "texture", "timing")
+               "texture", "turns", "timing")
 
 
 def is_reference(name: str) -> bool:
@@ -414,7 +415,8 @@ def correspondence_table(run: Run) -> Table:
 def default_tables(run: Run, ablation_run: Run | None = None, results: str | Path | None = None) -> list[str]:
     """The tables a run supports: geometry, photometric and timing; ablation with ablation variants;
     correspondence when a metrics JSON has correspondence scores, correspondence_regions when one has
-    per-region scores; texture when every subject's template has its ``texture_quality.json``."""
+    per-region scores; texture when every subject's template has its ``texture_quality.json``; turns when every
+    subject has its artist mesh's ``reparam/turns.json``."""
     names = ["geometry", "photometric"]
     if any(is_ablation(m) for m in (ablation_run or run).methods):
         names.append("ablation")
@@ -426,6 +428,8 @@ def default_tables(run: Run, ablation_run: Run | None = None, results: str | Pat
         names.append("position_regions")
     if results is not None and all(Layout(results).template_file(s, QUALITY_FILE).is_file() for s in run.subjects):
         names.append("texture")
+    if results is not None and all(Layout(results).reparam_turns(s).is_file() for s in run.subjects):
+        names.append("turns")
     return names + ["timing"]
 
 
@@ -463,5 +467,6 @@ def build_tables(results: str | Path, benchmarks: str | Path, subjects, methods,
                 "correspondence_regions": lambda: correspondence_regions_table(run),
                 "position_regions": lambda: position_regions_table(run),
                 "texture": lambda: texture_table(results, run.subjects),
+                "turns": lambda: turns_table(results, run.subjects),
                 "timing": lambda: timing_table(results, benchmarks, run, extra)}
     return [builders[name]() for name in (names or default_tables(run, ablation_run, results))]

@@ -26,6 +26,7 @@ def application_targets(subject):
         return []
     targets = [results_path("remeshed", subject, e) for e in APP_EXPRESSIONS]
     targets += [results_path("reparametrized", subject, e) for e in APP_EXPRESSIONS]
+    targets += [results_path("reparam_turns", subject)]
     targets += [results_path("blendshapes", subject), results_path("animation", subject)]
     return targets
 
@@ -201,3 +202,44 @@ rule reparametrize_expression:
         " --artist {input.artist} --mesh {input.mesh} --template-dir {params.template_dir}"
         " --settings {params.settings} --output {output.obj}"
         " > {log} 2>&1"
+
+
+def truth_of_turns(wildcards):
+    """The ground truth `gpja turns` carries the artist mesh through (synthetic data only)."""
+    if not GROUND_TRUTH:
+        return {}
+    return {"truth": ground_truth_file(wildcards.subject, f"{TEMPLATE_EXPRESSION}.npz"),
+            "subject_info": ground_truth_file(wildcards.subject, SUBJECT_FILE),
+            "scan": scan_ply(wildcards.subject, TEMPLATE_EXPRESSION)}
+
+
+rule count_turns:
+    """The artist mesh's faces turned over along each hop of the registration tree, and, on synthetic data, the
+    faces the generator's own motion turns over (a closing eye folds the lid's skin under)."""
+    input:
+        unpack(truth_of_turns),
+        artist=rules.artist_mesh.output.obj,
+        meshes=lambda wc: [results_path("reparametrized", wc.subject, e) for e in APP_EXPRESSIONS],
+        order=results_path("registration_order", "{subject}"),
+        template=rules.build_template.output.obj,
+        observed=rules.build_template.output.observed,
+    output:
+        results_path("reparam_turns", "{subject}"),
+    params:
+        meshes=lambda wc: named_meshes({e: results_path("reparametrized", wc.subject, e) for e in APP_EXPRESSIONS}),
+        template_dir=results_path("template_dir", "{subject}"),
+        truth=(f"--ground-truth-root {DATA['ground_truth_root']} --scans-root {DATA['scans_root']}"
+               if GROUND_TRUTH else ""),
+        expression=TEMPLATE_EXPRESSION,
+    log:
+        log_path("{subject}", "applications", "turns"),
+    benchmark:
+        bench_path("{subject}", "applications", "turns")
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=5,
+    shell:
+        "gpja --threads {threads} turns --subject {wildcards.subject} --artist {input.artist} --meshes {params.meshes}"
+        " --order {input.order} --template-dir {params.template_dir} --template-expression {params.expression}"
+        " {params.truth} --output {output} > {log} 2>&1"

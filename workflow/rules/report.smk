@@ -6,6 +6,7 @@
 TABLES = ["geometry", "photometric"]
 TABLES += ["ablation"] if ABLATION_VARIANTS else []
 TABLES += ["correspondence", "correspondence_regions", "position_regions", "texture"] if GROUND_TRUTH else []
+TABLES += ["turns"] if APPS_ON else []
 TABLES += ["timing"]
 TABLES_DIR = str(LAYOUT.tables_dir)
 # the methods the tables read: every method, then the references (the oracle's row of Table 2)
@@ -26,7 +27,8 @@ def table_outputs():
 def table_inputs(wildcards):
     """Every metrics JSON, the registration logs the timing table reads and the references (synthetic data)."""
     return {"metrics": metrics_files(), "logs": [results_path("registration_log", s, m, e) for s, m, e in runs()],
-            "references": [t for s in SUBJECTS for t in reference_targets(s)]}
+            "references": [t for s in SUBJECTS for t in reference_targets(s)],
+            "turns": [results_path("reparam_turns", s) for s in SUBJECTS] if APPS_ON else []}
 
 
 rule make_tables:
