@@ -349,7 +349,7 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
     frames = np.load(subject_dir / "animation_frames.npz")
     assert len(frames["frames"]) == apps["animation"]["strip_frames"]
     assert int(frames["count"]) == (len(apps["animation"]["sequence"]) - 1) * apps["animation"]["frames_per_transition"] + 1
-    for kind in ("animation", "reparam"):
+    for kind in ("animation", "reparam", "turns"):
         assert (figures / f"{kind}_S01.png").stat().st_size > 10_000, kind
     report = (work / f"results/{cfg['dataset']}/report.html").read_text(errors="replace")
     assert "closeups_S01.png" in report and "geometry.md" in report  # figures and tables in the HTML report

@@ -147,8 +147,9 @@ def hop_turns(carried: Mapping[str, np.ndarray], F: np.ndarray, hops, observed: 
         truth_found: (n,) bool vertices the true motion places; a face counts in the truth's columns only when its
             three vertices are placed (None = all).
     Returns:
-        One dict a hop: ``parent``, ``expression``, ``turned``, ``turned_observed``; with ``truth`` also
-        ``truth_turned``, ``truth_turned_observed``, ``both`` (turned by both), ``faces_compared``.
+        One dict a hop: ``parent``, ``expression``, ``turned``, ``turned_observed``, ``turned_faces`` (their
+        indices); with ``truth`` also ``truth_turned``, ``truth_turned_observed``, ``both`` (turned by both),
+        ``faces_compared`` and ``truth_turned_faces``.
     """
     from gpja.folds import turned_faces
 
@@ -163,7 +164,9 @@ def hop_turns(carried: Mapping[str, np.ndarray], F: np.ndarray, hops, observed: 
         if truth is not None:
             true = turned_faces(truth[expression], truth[parent], F) & compared
             row.update(truth_turned=int(true.sum()), truth_turned_observed=int((true & observed).sum()),
-                       both=int((true & ours).sum()), faces_compared=int(compared.sum()))
+                       both=int((true & ours).sum()), faces_compared=int(compared.sum()),
+                       truth_turned_faces=np.flatnonzero(true).tolist())
+        row["turned_faces"] = np.flatnonzero(ours).tolist()
         rows.append(row)
     return rows
 

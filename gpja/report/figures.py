@@ -30,7 +30,7 @@ COMPARED = "compared"
 #: the metrics JSONs (and their detail folders) or the registration logs of its methods and expressions, and
 #: on synthetic data the texture's quality against the ground truth (``template/texture_quality.json`` and its
 #: error image; an input only where the run has ground truth).
-NEEDS = ("template", "metrics", "registration_logs", "texture_quality", "stages", "animation", "reparam")
+NEEDS = ("template", "metrics", "registration_logs", "texture_quality", "stages", "animation", "reparam", "turns")
 #: The texture-quality files of a template folder (``gpja texture-quality``; gpja.metrics.texture_quality).
 TEXTURE_QUALITY_FILES = ("texture_quality.json", "texture_error.png")
 
@@ -187,6 +187,7 @@ FIGURES: dict[str, Figure] = {f.name: f for f in [
     Figure("animation", "gpja.report.figures_applications:draw_animation", needs=("animation",), applications=True),
     Figure("reparam", "gpja.report.figures_applications:draw_reparam", needs=("template", "reparam"),
            applications=True),
+    Figure("turns", "gpja.report.figures_applications:draw_turns", needs=("template", "turns"), applications=True),
 ]}
 
 
@@ -317,6 +318,8 @@ class FigurePlan:
         if "reparam" in entry.needs:
             files += [self.layout.artist_mesh(subject)]
             files += [self.layout.reparametrized(subject, e) for e in self.expressions_of(entry)]
+        if "turns" in entry.needs:
+            files += [self.layout.artist_mesh(subject), self.layout.reparam_turns(subject)]
         if "texture_quality" in entry.needs and self.ground_truth:
             files += [self.layout.template_file(subject, name) for name in TEXTURE_QUALITY_FILES]
         return [str(f) for f in files]

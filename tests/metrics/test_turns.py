@@ -74,11 +74,13 @@ def test_hop_turns_counts_a_face_folded_over_and_not_a_rotated_one():
     observed = np.array([True, False])
     rows = hop_turns(carried, SQUARE_F, hops, observed)
     assert [(r["turned"], r["turned_observed"]) for r in rows] == [(1, 0), (0, 0), (1, 0)]
+    assert [r["turned_faces"] for r in rows] == [[1], [], [1]]
     assert "truth_turned" not in rows[0]
     # the truth: the rotation turns nothing, the fold face 1; both count it once
     truth = {"a": SQUARE_V, "b": rotated, "c": folded}
     rows = hop_turns(carried, SQUARE_F, hops, np.array([False, True]), truth)
     assert [(r["truth_turned"], r["truth_turned_observed"], r["both"]) for r in rows] == [(0, 0, 0), (1, 1, 0), (0, 0, 0)]
+    assert [r["truth_turned_faces"] for r in rows] == [[], [1], []]
     assert rows[0]["turned_observed"] == 1 and rows[0]["faces_compared"] == 2
     # a face whose vertex the truth could not place is left out of the truth's columns
     rows = hop_turns(carried, SQUARE_F, hops, observed, truth, np.array([True, True, True, False]))
@@ -153,7 +155,7 @@ def test_gpja_turns_writes_the_count_of_each_hop(tmp_path):
     args = write_case(tmp_path, folded)
     assert main(["turns", *args, "--meshes", f"a={tmp_path / 'artist.obj'}", f"b={tmp_path / 'b.obj'}"]) == 0
     log = json.loads((tmp_path / "turns.json").read_text())
-    assert log["hops"] == [{"parent": "a", "expression": "b", "turned": 1, "turned_observed": 1}]
+    assert log["hops"] == [{"parent": "a", "expression": "b", "turned": 1, "turned_observed": 1, "turned_faces": [1]}]
     assert log["faces"] == 2 and log["observed_faces"] == 2 and log["truth"] is None
 
 
