@@ -338,11 +338,13 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         assert log["render"]["identical"] or log["render"]["psnr_db"] >= 35.0
         carried = json.loads((subject_dir / "reparam" / f"{expression}.json").read_text())
         assert carried["distance_to_source_mm"]["max"] <= 1e-3
-    # every hop of the tree counted, by the carried meshes and by the true motion (which places every vertex)
+    # every hop of the tree counted, by the carried meshes and by the true motion, which places every vertex (the
+    # socket's too, 13-18 mm inside the open mouth, where the jaw's map stretches space twelvefold)
     turns = json.loads((subject_dir / "reparam" / "turns.json").read_text())
     assert [(h["parent"], h["expression"]) for h in turns["hops"]] == [
         (order["parent"][e], e) for e in order["order"] if order["parent"][e]]
-    assert turns["truth"]["vertices_placed"] == turns["truth"]["vertices"]
+    truth = turns["truth"]
+    assert truth["vertices_placed"] == truth["vertices"] and truth["unplaced_nearest_scan_mm"] is None
     assert all(0 <= h["both"] <= min(h["turned"], h["truth_turned"]) for h in turns["hops"])
     assert (subject_dir / "S01.glb").stat().st_size > 100_000
     assert (subject_dir / "animation.mp4").stat().st_size > 1_000

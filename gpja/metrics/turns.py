@@ -33,6 +33,10 @@ NEWTON_ITERATIONS = 30
 NEWTON_TOLERANCE_MM = 1e-3
 #: Central-difference step of the maps' Jacobians, mm.
 JACOBIAN_STEP_MM = 1e-4
+#: Halvings of a Newton step that would not shrink a point's residual.
+BACKTRACKS = 12
+#: Further starts (the next nearest scan vertices' rest points) for a vertex whose first start stalls.
+RESTARTS = 16
 
 
 # --- the ground truth's motion -----------------------------------------------------------------------------------
@@ -62,18 +66,35 @@ def invert_map(space_map: Callable[[np.ndarray], np.ndarray], X: np.ndarray, gue
     """
     X = np.asarray(X, dtype=np.float64)
     R = np.array(guess, dtype=np.float64)
+    residual = space_map(R) - X
+    size = np.linalg.norm(residual, axis=1)
     for _ in range(iterations):
-        residual = space_map(R) - X
-        if np.abs(residual).max(initial=0.0) < 1e-12:
+        if size.max(initial=0.0) < 1e-12:
             break
         J = map_jacobians(space_map, R)
         ok = np.abs(np.linalg.det(J)) > 1e-12
-        R[ok] -= np.linalg.solve(J[ok], residual[ok][:, :, None])[:, :, 0]
-    return R, np.linalg.norm(space_map(R) - X, axis=1)
+        step = np.zeros_like(R)
+        step[ok] = np.linalg.solve(J[ok], residual[ok][:, :, None])[:, :, 0]
+        # damped: halve a point's step until its residual shrinks (a full step can overshoot where the map is far
+        # from linear over it, e.g. from a start across an open mouth)
+        scale = np.ones(len(R))
+        todo = ok & (size > 0)
+        for _ in range(BACKTRACKS):
+            if not todo.any():
+                break
+            trial = R[todo] - scale[todo, None] * step[todo]
+            trial_residual = space_map(trial) - X[todo]
+            trial_size = np.linalg.norm(trial_residual, axis=1)
+            better = trial_size < size[todo]
+            idx = np.flatnonzero(todo)[better]
+            R[idx], residual[idx], size[idx] = trial[better], trial_residual[better], trial_size[better]
+            todo[np.flatnonzero(todo)[better]] = False
+            scale[todo] *= 0.5
+    return R, size
 
 
 def carry_through_truth(V: np.ndarray, ground_truth_root: str | Path, scans_root: str | Path, subject: str,
-                        source_expression: str, expressions) -> tuple[dict[str, np.ndarray], np.ndarray]:
+                        source_expression: str, expressions) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """A mesh in the source expression's frame carried by the synthetic generator's true motion.
 
     Each vertex's rest point solves ``phi_source(r) = v`` (:func:`invert_map`), starting from the rest point of the
@@ -87,8 +108,10 @@ def carry_through_truth(V: np.ndarray, ground_truth_root: str | Path, scans_root
         scans_root: ``{root}/{subject}/{source_expression}.ply``.
         expressions: the expressions to carry it to.
     Returns:
-        ``{expression: (n, 3) float64 mm}`` and the (n,) bool of vertices whose rest point was found
-        (:data:`NEWTON_TOLERANCE_MM`).
+        ``{expression: (n, 3) float64 mm}``, the (n,) bool of vertices whose rest point was found
+        (:data:`NEWTON_TOLERANCE_MM`) and each vertex's (n,) float64 distance to the nearest scan vertex, mm (deep
+        in an open mouth's socket the start is 13-18 mm away and the jaw's map stretches space twelvefold there:
+        the damped steps of :func:`invert_map` still reach it).
     Raises:
         InputError: a ground-truth or scan file is missing or corrupt, or the rest points do not match the scan.
     """
@@ -114,14 +137,40 @@ def carry_through_truth(V: np.ndarray, ground_truth_root: str | Path, scans_root
         return map_to_expression(R, head, source_expression)
 
     V = np.asarray(V, dtype=np.float64)
-    _, nearest = cKDTree(scan).query(V)
-    guess = rest[nearest]
-    J = map_jacobians(source_map, guess)
-    ok = np.abs(np.linalg.det(J)) > 1e-12
-    guess[ok] += np.linalg.solve(J[ok], (V - scan[nearest])[ok][:, :, None])[:, :, 0]
-    R, residual = invert_map(source_map, V, guess)
+    tree = cKDTree(scan)
+    distance, nearest = tree.query(V)
+    R, residual = invert_map(source_map, V, linear_guess(source_map, V, scan[nearest], rest[nearest]))
     found = residual < NEWTON_TOLERANCE_MM
-    return {e: map_to_expression(R, head, e) for e in expressions}, found
+    if not found.all():
+        # where the map squeezes space (under a dropped jaw's chin) the nearest start can stall: the vertex itself,
+        # then the next nearest scan vertices' rest points
+        lost = np.flatnonzero(~found)
+        retry, size = invert_map(source_map, V[lost], V[lost])
+        won = size < NEWTON_TOLERANCE_MM
+        R[lost[won]], found[lost[won]] = retry[won], True
+    if not found.all():
+        stalled = np.flatnonzero(~found)
+        _, others = tree.query(V[stalled], k=RESTARTS + 1)
+        for k in range(1, others.shape[1]):
+            rows = np.flatnonzero(~found[stalled])
+            if not rows.size:
+                break
+            lost, start = stalled[rows], others[rows, k]
+            retry, size = invert_map(source_map, V[lost], linear_guess(source_map, V[lost], scan[start], rest[start]))
+            won = size < NEWTON_TOLERANCE_MM
+            R[lost[won]], found[lost[won]] = retry[won], True
+    return {e: map_to_expression(R, head, e) for e in expressions}, found, distance
+
+
+def linear_guess(space_map: Callable[[np.ndarray], np.ndarray], X: np.ndarray, anchors: np.ndarray,
+                 anchor_rest: np.ndarray) -> np.ndarray:
+    """(n, 3) rest points near ``X (n, 3)`` mm: each anchor's rest point moved by the map's inverse Jacobian there
+    (``anchors`` (n, 3) mm, images of ``anchor_rest`` (n, 3) mm)."""
+    guess = np.array(anchor_rest, dtype=np.float64)
+    J = map_jacobians(space_map, guess)
+    ok = np.abs(np.linalg.det(J)) > 1e-12
+    guess[ok] += np.linalg.solve(J[ok], (X - anchors)[ok][:, :, None])[:, :, 0]
+    return guess
 
 
 # --- the counts ----------------------------------------------------------------------------------------------------
@@ -219,11 +268,15 @@ def count_turns(artist_path: str | Path, meshes: Mapping[str, str | Path], order
     truth = found = None
     if ground_truth_root is not None:
         source = template_expression or order.get("root")
-        truth, found = carry_through_truth(artist.V, ground_truth_root, scans_root, subject, source, list(carried))
+        truth, found, distance = carry_through_truth(artist.V, ground_truth_root, scans_root, subject, source,
+                                                     list(carried))
     rows = hop_turns(carried, artist.F, hops, observed, truth, found)
     log = {"subject": subject, "artist_mesh": str(artist_path), "faces": int(len(artist.F)),
            "observed_faces": int(observed.sum()), "hops": rows,
-           "truth": None if truth is None else {"vertices_placed": int(found.sum()), "vertices": int(len(found))},
+           "truth": None if truth is None else {
+               "vertices_placed": int(found.sum()), "vertices": int(len(found)),
+               # how close to the scan an unplaced vertex comes (None: all placed)
+               "unplaced_nearest_scan_mm": float(distance[~found].min()) if (~found).any() else None},
            "seconds": round(time.perf_counter() - start, 2)}
     write_json(output, log)
     for row in rows:

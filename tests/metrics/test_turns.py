@@ -63,6 +63,17 @@ def test_invert_map_undoes_a_twist():
     assert residual.max() < MAP_INVERSE_MM
 
 
+def test_invert_map_damps_steps_that_overshoot():
+    """Newton on arctan overshoots from farther than 1.39 of its scale; the halved steps converge."""
+    def squash(X):
+        return 10.0 * np.arctan(X / 10.0)
+
+    R = np.array([[0.0, 3.0, -5.0], [1.0, 0.0, 2.0]])
+    found, residual = invert_map(squash, squash(R), np.full((2, 3), 40.0))
+    np.testing.assert_allclose(found, R, atol=MAP_INVERSE_MM)
+    assert residual.max() < MAP_INVERSE_MM
+
+
 # --- the counts ----------------------------------------------------------------------------------------------
 
 def test_hop_turns_counts_a_face_folded_over_and_not_a_rotated_one():
@@ -112,8 +123,9 @@ def test_the_true_motion_carries_the_scan_to_its_ground_truth(tiny):
     # on the scan, and 1.5 mm off it (points of space a template's bust has): both placed
     off = scan[pick] + np.array([0.0, 0.0, 1.5])
     V = np.concatenate([scan[pick], off])
-    carried, found = carry_through_truth(V, tiny["gt"], tiny["scans"], "S01", source, [source, other])
+    carried, found, distance = carry_through_truth(V, tiny["gt"], tiny["scans"], "S01", source, [source, other])
     assert found.all()
+    assert distance[: len(pick)].max() == 0.0 and distance[len(pick):].min() > 0.0
     np.testing.assert_allclose(carried[source], V, atol=1e-6)
     np.testing.assert_allclose(carried[other][: len(pick)], map_to_expression(rest[pick], head, other), atol=1e-6)
 
