@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from gpja.cli import main
 from gpja.data.synthetic.expressions import map_to_expression
+from gpja.data.synthetic.head import EYE_RADIUS_MM
 from gpja.errors import InputError
 from gpja.io import read_npz, write_json
 from gpja.mesh import TexturedMesh, read_ply, write_obj
@@ -107,15 +109,19 @@ def test_tree_hops_follow_the_order_and_skip_the_root():
 
 # --- the true motion, on a tiny synthetic subject ------------------------------------------------------------
 
+#: The tiny subject with a closing eye as well.
+EXPRESSIONS = ("1_neutral", "3_mouth_stretch", "18_eye_closed", "2_smile")
+
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     root = tmp_path_factory.mktemp("turns_tiny")
-    roots, _ = run_tiny(root, subject="S01")
+    roots, _ = run_tiny(root, cfg=replace(TINY, expressions=EXPRESSIONS), subject="S01")
     return roots
 
 
 def test_the_true_motion_carries_the_scan_to_its_ground_truth(tiny):
-    source, other = TINY.expressions[1], TINY.expressions[0]  # from the mouth-open expression to the neutral
+    source, other = "3_mouth_stretch", "1_neutral"  # from the mouth-open expression to the neutral
     scan, _ = read_ply(tiny["scans"] / "S01" / f"{source}.ply")
     rest = read_npz(tiny["gt"] / "S01" / f"{source}.npz")["scan_rest_coords"]
     head = subject_identity(tiny["gt"], "S01")
@@ -128,6 +134,30 @@ def test_the_true_motion_carries_the_scan_to_its_ground_truth(tiny):
     assert distance[: len(pick)].max() == 0.0 and distance[len(pick):].min() > 0.0
     np.testing.assert_allclose(carried[source], V, atol=1e-6)
     np.testing.assert_allclose(carried[other][: len(pick)], map_to_expression(rest[pick], head, other), atol=1e-6)
+
+
+def test_the_true_motion_turns_the_lids_and_the_open_mouths_inner_lip_and_nothing_else(tiny):
+    """Regression case: the template expression's scan (open mouth and eyes, a 0.8 mm triangulation) carried by the
+    true motion. Closing the eyes turns faces over in a band along the upper lids (the skin between the lid's margin
+    and the eyeball folds under the closing lid); closing the mouth straight from the open one turns the open mouth's
+    inner lower lip over; the smile turns none."""
+    V, F = read_ply(tiny["scans"] / "S01" / "3_mouth_stretch.ply")
+    carried, found, _ = carry_through_truth(V, tiny["gt"], tiny["scans"], "S01", "3_mouth_stretch", EXPRESSIONS)
+    assert found.all()
+    eyes, mouth, smile = hop_turns(carried, F, [("1_neutral", "18_eye_closed"), ("3_mouth_stretch", "1_neutral"),
+                                                ("1_neutral", "2_smile")], np.ones(len(F), dtype=bool))
+    assert eyes["turned"] > 100 and mouth["turned"] > 10 and smile["turned"] == 0
+    head = subject_identity(tiny["gt"], "S01")
+    # where on the template expression's scan: above an eye's centre, within the shell the generator's lid turns
+    centres = np.array([head.eye_center(s) for s in (-1, 1)])
+    turned = V[F[eyes["turned_faces"]]].mean(axis=1)
+    offset = turned[:, None, :] - centres[None, :, :]
+    nearest = offset[np.arange(len(turned)), np.argmin(np.linalg.norm(offset, axis=2), axis=1)]
+    assert np.linalg.norm(nearest, axis=1).max() < EYE_RADIUS_MM + 16.0 and (nearest[:, 1] > 0).all()
+    # between the mouth's corners, below its rest height (the dropped jaw's lower lip)
+    turned = V[F[mouth["turned_faces"]]].mean(axis=1)
+    assert (np.abs(turned[:, 0]) < head.mouth_half_width + 5.0).all()
+    assert (turned[:, 1] < head.mouth_y).all() and (turned[:, 1] > head.mouth_y - 40.0).all()
 
 
 def test_carry_through_truth_names_a_missing_or_mismatched_file(tiny, tmp_path):
