@@ -37,6 +37,9 @@ JACOBIAN_STEP_MM = 1e-4
 BACKTRACKS = 12
 #: Further starts (the next nearest scan vertices' rest points) for a vertex whose first start stalls.
 RESTARTS = 16
+#: A face GPJA turns counts as near the truth's when its centroid is this close to a face the truth turns, mm (about
+#: two rings of the default stand-in artist mesh, whose edges are 2-3 mm).
+NEAR_TRUTH_MM = 5.0
 
 
 # --- the ground truth's motion -----------------------------------------------------------------------------------
@@ -198,8 +201,12 @@ def hop_turns(carried: Mapping[str, np.ndarray], F: np.ndarray, hops, observed: 
     Returns:
         One dict a hop: ``parent``, ``expression``, ``turned``, ``turned_observed``, ``turned_faces`` (their
         indices); with ``truth`` also ``truth_turned``, ``truth_turned_observed``, ``both`` (turned by both),
-        ``faces_compared`` and ``truth_turned_faces``.
+        ``near_truth`` (GPJA's turned faces within :data:`NEAR_TRUTH_MM` of one the truth turns, centroid to
+        centroid at the parent's true positions: the same fold a ring or two off counts), ``faces_compared`` and
+        ``truth_turned_faces``.
     """
+    from scipy.spatial import cKDTree
+
     from gpja.folds import turned_faces
 
     F = np.asarray(F, dtype=np.int64)
@@ -212,8 +219,13 @@ def hop_turns(carried: Mapping[str, np.ndarray], F: np.ndarray, hops, observed: 
                "turned_observed": int((ours & observed).sum())}
         if truth is not None:
             true = turned_faces(truth[expression], truth[parent], F) & compared
+            near = 0
+            if true.any() and ours.any():
+                centroids = np.asarray(truth[parent], dtype=np.float64)[F].mean(axis=1)
+                gap, _ = cKDTree(centroids[true]).query(centroids[ours])
+                near = int((gap <= NEAR_TRUTH_MM).sum())
             row.update(truth_turned=int(true.sum()), truth_turned_observed=int((true & observed).sum()),
-                       both=int((true & ours).sum()), faces_compared=int(compared.sum()),
+                       both=int((true & ours).sum()), near_truth=near, faces_compared=int(compared.sum()),
                        truth_turned_faces=np.flatnonzero(true).tolist())
         row["turned_faces"] = np.flatnonzero(ours).tolist()
         rows.append(row)
@@ -284,6 +296,7 @@ def count_turns(artist_path: str | Path, meshes: Mapping[str, str | Path], order
                 f"turned over ({row['turned_observed']} on observed material)")
         if truth is not None:
             line += (f"; the true motion turns {row['truth_turned']} ({row['truth_turned_observed']} observed), "
-                     f"{row['both']} of them also turned here")
+                     f"{row['both']} of them also turned here; {row['near_truth']} of these {row['turned']} within "
+                     f"{NEAR_TRUTH_MM:g} mm of one the truth turns")
         progress(line)
     return log

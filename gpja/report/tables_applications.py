@@ -5,11 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from gpja.errors import InputError
+from gpja.metrics.turns import NEAR_TRUTH_MM
 from gpja.report.table_model import Block, Cell, Table, subject_label
 from gpja.results import Layout
 
 #: The counts of one hop, in column order (``gpja.metrics.turns.hop_turns``); the last three need ground truth.
-TURN_COUNTS = ("turned", "turned_observed", "truth_turned", "truth_turned_observed", "both")
+TURN_COUNTS = ("turned", "turned_observed", "truth_turned", "truth_turned_observed", "both", "near_truth")
 
 
 def read_turns(results: str | Path, subject: str) -> dict:
@@ -36,15 +37,16 @@ def turns_table(results: str | Path, subjects) -> Table:
                         + [Cell(hop.get(k), 0) for k in TURN_COUNTS])
             csv_rows.append([s, hop["parent"], hop["expression"], *[hop.get(k) for k in TURN_COUNTS],
                              records[s].get("faces"), records[s].get("observed_faces")])
-    block = Block(headers=["Subject", "Hop", "turned", "observed", "turned", "observed", "turned"], rows=rows,
-                  label_columns=2, groups=[("GPJA", 2), ("true motion", 2), ("both", 1)], rules=rules)
+    block = Block(headers=["Subject", "Hop", "turned", "observed", "turned", "observed", "turned", "near"], rows=rows,
+                  label_columns=2, groups=[("GPJA", 2), ("true motion", 2), ("both", 1), ("GPJA", 1)], rules=rules)
     faces = sorted({r.get("faces") for r in records.values()})
     notes = [(f"Faces of the artist mesh ({', '.join(str(f) for f in faces)}) whose normal turns by more than 90 "
               "degrees from the parent expression (the one its registration started from) to the expression. "
               "Observed: on material a camera saw in the template expression (template/texture_observed.png). "
               "True motion: the artist mesh carried by the synthetic generator's own maps of space instead "
-              "(gpja/metrics/turns.py); both: turned by GPJA and by the true motion. A closing eye turns faces over "
-              "in truth: the template's one skin over lid and eyeball folds under the closing lid.")]
+              "(gpja/metrics/turns.py); both: turned by GPJA and by the true motion; GPJA near: GPJA's turned "
+              f"faces within {NEAR_TRUTH_MM:g} mm of one the true motion turns. A closing eye turns faces over in "
+              "truth: the template's one skin over lid and eyeball folds under the closing lid.")]
     caption = "The artist mesh's faces turned over between adjacent expressions (issue 16's bar: none)."
     return Table("turns", caption, [block],
                  ["subject", "parent", "expression", *TURN_COUNTS, "faces", "observed_faces"], csv_rows, notes)

@@ -95,6 +95,13 @@ def test_hop_turns_counts_a_face_folded_over_and_not_a_rotated_one():
     assert [(r["truth_turned"], r["truth_turned_observed"], r["both"]) for r in rows] == [(0, 0, 0), (1, 1, 0), (0, 0, 0)]
     assert [r["truth_turned_faces"] for r in rows] == [[], [1], []]
     assert rows[0]["turned_observed"] == 1 and rows[0]["faces_compared"] == 2
+    # the truth turns the other face: not the same face, but next to it (0.47 mm apart); 100x larger, 47 mm apart
+    other = SQUARE_V.copy()
+    other[1] = [-1.0, 0.5, 0.0]  # face 0 (0, 1, 2) winds the other way
+    row, = hop_turns(carried, SQUARE_F, [("a", "b")], observed, {"a": SQUARE_V, "b": other})
+    assert (row["turned_faces"], row["truth_turned_faces"], row["both"], row["near_truth"]) == ([1], [0], 0, 1)
+    row, = hop_turns(carried, SQUARE_F, [("a", "b")], observed, {"a": SQUARE_V * 100, "b": other * 100})
+    assert row["near_truth"] == 0
     # a face whose vertex the truth could not place is left out of the truth's columns
     rows = hop_turns(carried, SQUARE_F, hops, observed, truth, np.array([True, True, True, False]))
     assert [r["truth_turned"] for r in rows] == [0, 0, 0] and rows[0]["faces_compared"] == 1

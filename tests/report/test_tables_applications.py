@@ -17,7 +17,7 @@ def write_turns(results, subject, hops, truth=True):
     for k, (parent, expression) in enumerate(hops):
         row = {"parent": parent, "expression": expression, "turned": 10 + k, "turned_observed": 5 + k}
         if truth:
-            row.update(truth_turned=k, truth_turned_observed=k, both=min(k, 1), faces_compared=300)
+            row.update(truth_turned=k, truth_turned_observed=k, both=min(k, 1), near_truth=2 * k, faces_compared=300)
         rows.append(row)
     write_json(Layout(results).reparam_turns(subject), {"subject": subject, "faces": 300, "observed_faces": 200,
                                                         "hops": rows, "truth": {} if truth else None})
@@ -28,8 +28,8 @@ def test_turns_table_has_a_row_per_hop_and_dashes_without_truth(tmp_path):
     write_turns(tmp_path, "S02", [("3_mouth_stretch", "1_neutral")], truth=False)
     table = turns_table(tmp_path, ["S01", "S02"])
     md = to_markdown(table)
-    assert "| Subject S01 | 1_neutral → 18_eye_closed | 11 | 6 | 1 | 1 | 1 |" in md
-    assert "| Subject S02 | 3_mouth_stretch → 1_neutral | 10 | 5 | – | – | – |" in md
+    assert "| Subject S01 | 1_neutral → 18_eye_closed | 11 | 6 | 1 | 1 | 1 | 2 |" in md
+    assert "| Subject S02 | 3_mouth_stretch → 1_neutral | 10 | 5 | – | – | – | – |" in md
     rows = read_csv_rows(to_csv(table))
     assert [r["expression"] for r in rows] == ["1_neutral", "18_eye_closed", "1_neutral"]
     assert rows[1]["truth_turned"] == "1" and rows[2]["truth_turned"] == "" and rows[0]["faces"] == "300"
