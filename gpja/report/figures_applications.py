@@ -155,7 +155,7 @@ def draw_turns(request: FigureRequest):
         if "truth_turned_faces" in hop:
             xy, _ = camera.project(centroids[np.asarray(hop["truth_turned_faces"], dtype=np.int64)])
             ax.scatter(xy[:, 0], xy[:, 1], s=14, facecolors="none", edgecolors=[TRUTH_COLOUR], linewidths=0.6)
-            title += f"\ntrue motion {hop['truth_turned']}, both {hop['both']}, GPJA's near {hop.get('near_truth', 0)}"
+            title += f"\ntrue motion {hop['truth_turned']}; both {hop['both']}, near {hop.get('near_truth', 0)}"
         xy, _ = camera.project(centroids[np.asarray(hop.get("turned_faces", []), dtype=np.int64)])
         ax.scatter(xy[:, 0], xy[:, 1], s=4, c=[OURS_COLOUR], linewidths=0)
         ax.set_xlim(c0 - 0.5, c1 + 0.5)

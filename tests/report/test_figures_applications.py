@@ -26,7 +26,7 @@ def write_run(tmp_path, hops):
 
 def test_turns_figure_marks_each_hops_faces(tmp_path):
     hops = [{"parent": "a", "expression": "b", "turned": 3, "turned_observed": 1, "turned_faces": [0, 5, 9],
-             "truth_turned": 1, "truth_turned_observed": 1, "both": 1, "truth_turned_faces": [5]},
+             "truth_turned": 1, "truth_turned_observed": 1, "both": 1, "near_truth": 0, "truth_turned_faces": [5]},
             {"parent": "b", "expression": "c", "turned": 0, "turned_observed": 0, "turned_faces": []}]
     request = write_run(tmp_path, hops)
     fig = draw_turns(request)
@@ -34,7 +34,7 @@ def test_turns_figure_marks_each_hops_faces(tmp_path):
     assert len(panels) == 2
     marks = [[len(c.get_offsets()) for c in ax.collections] for ax in panels]
     assert marks == [[1, 3], [0]]  # the truth's rings, then GPJA's dots; no truth on the second hop
-    assert "true motion 1, both 1" in panels[0].get_title() and "true motion" not in panels[1].get_title()
+    assert "true motion 1; both 1, near 0" in panels[0].get_title() and "true motion" not in panels[1].get_title()
     png, pdf = make_figure("turns", request, tmp_path / "fig" / "turns_S01.png")
     assert png.read_bytes()[:4] == b"\x89PNG" and pdf.read_bytes()[:4] == b"%PDF"
 
