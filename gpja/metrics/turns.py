@@ -46,14 +46,11 @@ NEAR_TRUTH_MM = 5.0
 
 def map_jacobians(space_map: Callable[[np.ndarray], np.ndarray], R: np.ndarray,
                   step: float = JACOBIAN_STEP_MM) -> np.ndarray:
-    """(n, 3, 3) float64 central-difference Jacobians ``d map / d R`` of a map of space at ``R (n, 3)`` mm."""
-    R = np.asarray(R, dtype=np.float64)
-    J = np.empty((len(R), 3, 3))
-    for k in range(3):
-        d = np.zeros(3)
-        d[k] = step
-        J[:, :, k] = (space_map(R + d) - space_map(R - d)) / (2.0 * step)
-    return J
+    """(n, 3, 3) float64 Jacobians ``d map / d R`` of a map of space at ``R (n, 3)`` mm, by the generator's central
+    differences (``gpja.data.synthetic.expressions.central_jacobians``) at this module's step."""
+    from gpja.data.synthetic.expressions import central_jacobians
+
+    return central_jacobians(space_map, R, step)
 
 
 def invert_map(space_map: Callable[[np.ndarray], np.ndarray], X: np.ndarray, guess: np.ndarray,
@@ -91,7 +88,7 @@ def invert_map(space_map: Callable[[np.ndarray], np.ndarray], X: np.ndarray, gue
             better = trial_size < size[todo]
             idx = np.flatnonzero(todo)[better]
             R[idx], residual[idx], size[idx] = trial[better], trial_residual[better], trial_size[better]
-            todo[np.flatnonzero(todo)[better]] = False
+            todo[idx] = False
             scale[todo] *= 0.5
     return R, size
 
@@ -144,24 +141,20 @@ def carry_through_truth(V: np.ndarray, ground_truth_root: str | Path, scans_root
     distance, nearest = tree.query(V)
     R, residual = invert_map(source_map, V, linear_guess(source_map, V, scan[nearest], rest[nearest]))
     found = residual < NEWTON_TOLERANCE_MM
-    if not found.all():
-        # where the map squeezes space (under a dropped jaw's chin) the nearest start can stall: the vertex itself,
-        # then the next nearest scan vertices' rest points
-        lost = np.flatnonzero(~found)
-        retry, size = invert_map(source_map, V[lost], V[lost])
+    # where the map squeezes space (under a dropped jaw's chin) the nearest start can stall: then the vertex itself,
+    # then the next nearest scan vertices' rest points
+    # (column 0 of the neighbours is the nearest, already tried: its turn goes to the vertex itself)
+    stalled = np.flatnonzero(~found)
+    neighbours = tree.query(V[stalled], k=RESTARTS + 1)[1] if stalled.size else None
+    for k in range(RESTARTS + 1 if stalled.size else 0):
+        rows = np.flatnonzero(~found[stalled])
+        if not rows.size:
+            break
+        lost, start = stalled[rows], neighbours[rows, k]
+        guess = V[lost] if k == 0 else linear_guess(source_map, V[lost], scan[start], rest[start])
+        retry, size = invert_map(source_map, V[lost], guess)
         won = size < NEWTON_TOLERANCE_MM
         R[lost[won]], found[lost[won]] = retry[won], True
-    if not found.all():
-        stalled = np.flatnonzero(~found)
-        _, others = tree.query(V[stalled], k=RESTARTS + 1)
-        for k in range(1, others.shape[1]):
-            rows = np.flatnonzero(~found[stalled])
-            if not rows.size:
-                break
-            lost, start = stalled[rows], others[rows, k]
-            retry, size = invert_map(source_map, V[lost], linear_guess(source_map, V[lost], scan[start], rest[start]))
-            won = size < NEWTON_TOLERANCE_MM
-            R[lost[won]], found[lost[won]] = retry[won], True
     return {e: map_to_expression(R, head, e) for e in expressions}, found, distance
 
 

@@ -9,7 +9,7 @@ from gpja.metrics.turns import NEAR_TRUTH_MM
 from gpja.report.table_model import Block, Cell, Table, subject_label
 from gpja.results import Layout
 
-#: The counts of one hop, in column order (``gpja.metrics.turns.hop_turns``); the last three need ground truth.
+#: The counts of one hop, in column order (``gpja.metrics.turns.hop_turns``); the last four need ground truth.
 TURN_COUNTS = ("turned", "turned_observed", "truth_turned", "truth_turned_observed", "both", "near_truth")
 
 

@@ -270,11 +270,18 @@ def map_to_expression(X: np.ndarray, p: HeadParams, expression: str) -> np.ndarr
     return X + expression_displacement(X, p, expression)
 
 
-def jacobian_determinants(X: np.ndarray, p: HeadParams, expression: str, h: float = 1e-3) -> np.ndarray:
-    """Central-difference det(d phi_e / d X) at rest points X (n, 3) mm -> (n,)."""
+def central_jacobians(space_map, X: np.ndarray, h: float) -> np.ndarray:
+    """(n, 3, 3) float64 central-difference Jacobians ``d space_map / d X`` at ``X (n, 3)`` mm, step ``h`` mm, of a
+    map of space ``(n, 3) -> (n, 3)`` (an expression's ``phi_e``, or any other)."""
+    X = np.asarray(X, dtype=np.float64)
     J = np.empty((len(X), 3, 3))
     for k in range(3):
         e = np.zeros(3)
         e[k] = h
-        J[:, :, k] = (map_to_expression(X + e, p, expression) - map_to_expression(X - e, p, expression)) / (2 * h)
-    return np.linalg.det(J)
+        J[:, :, k] = (space_map(X + e) - space_map(X - e)) / (2 * h)
+    return J
+
+
+def jacobian_determinants(X: np.ndarray, p: HeadParams, expression: str, h: float = 1e-3) -> np.ndarray:
+    """Central-difference det(d phi_e / d X) at rest points X (n, 3) mm -> (n,)."""
+    return np.linalg.det(central_jacobians(lambda R: map_to_expression(R, p, expression), X, h))
