@@ -14,7 +14,8 @@ The rig comes from the shared texture and the start's geometry, not from any gro
 
 1. The eye openings are where the texture shows the white of the eye (:func:`find_openings`): texels of low
    saturation and at least skin brightness, outside the mouth's socket (teeth are white too), grouped into the two
-   largest clusters; an opening is the convex hull of its cluster's texels (the iris between the two whites
+   largest clusters (a white too small to start one, as a few views' fusion leaves it in fragments, joins the
+   cluster next to it); an opening is the convex hull of its cluster's texels (the iris between the two whites
    included). A cluster over 3 % of the texture, or one whose eyeball would not sit above the mouth, is no eye.
 2. On the start mesh, the opening's texels lie on the eyeball. A sphere of the adult eyeball's radius
    (``EYE_RADIUS_MM``) fitted to them gives the centre the lid turns about; the hull's boundary gives the upper
@@ -86,7 +87,8 @@ class EyeRig:
     gap_max: float
 
 
-def find_openings(texture: np.ndarray, mouth_mask: np.ndarray | None = None) -> list[np.ndarray]:
+def find_openings(texture: np.ndarray, mouth_mask: np.ndarray | None = None,
+                  join_fragments: bool = True) -> list[np.ndarray]:
     """The eye openings of a texture: up to two convex hulls (k, 2) float32 in texel coordinates (column, row),
     largest first (module docstring, step 1). ``texture``: (T, T, 3) float albedo in [0, 1]; ``mouth_mask``: (T', T')
     float, 0 on the mouth's socket (its teeth are white too), resampled to T; None = no socket. [] when the texture
@@ -107,10 +109,13 @@ def find_openings(texture: np.ndarray, mouth_mask: np.ndarray | None = None) -> 
     white = white.astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(white, connectivity=8)
     min_area = max(4, int(MIN_CLUSTER_FRACTION * white.size))
-    parts = sorted((k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area),
-                   key=lambda k: -stats[k, cv2.CC_STAT_AREA])
+    parts = sorted(range(1, n), key=lambda k: -stats[k, cv2.CC_STAT_AREA])
+    if not join_fragments:
+        parts = [k for k in parts if stats[k, cv2.CC_STAT_AREA] >= min_area]
     # an eye shows two whites, one either side of the iris: a part joins a group whose box it comes within the
-    # group's first part's height of
+    # group's first part's height of; only a part of at least min_area starts a group. A white that few views saw
+    # is broken into fragments smaller than that (a 5-view capture: one eye's inner white in pieces of 4-13
+    # texels); they still join the eye next to them (join_fragments), so that its opening spans the iris.
     groups: list[dict] = []
     for k in parts:
         x, y, w, h = (int(v) for v in stats[k, :4])
@@ -123,8 +128,9 @@ def find_openings(texture: np.ndarray, mouth_mask: np.ndarray | None = None) -> 
                 g["area"] += int(stats[k, cv2.CC_STAT_AREA])
                 break
         else:
-            groups.append({"parts": [k], "box": (x, y, x + w, y + h), "height": h,
-                           "area": int(stats[k, cv2.CC_STAT_AREA])})
+            if stats[k, cv2.CC_STAT_AREA] >= min_area:
+                groups.append({"parts": [k], "box": (x, y, x + w, y + h), "height": h,
+                               "area": int(stats[k, cv2.CC_STAT_AREA])})
     groups = sorted((g for g in groups if g["area"] <= MAX_EYE_FRACTION * white.size), key=lambda g: -g["area"])
     hulls = []
     for g in groups[:2]:

@@ -63,6 +63,22 @@ def test_two_eyes_are_found_where_the_whites_are_and_a_texture_without_them_has_
     assert find_openings(skin) == []
 
 
+def test_a_white_seen_only_in_fragments_still_joins_its_eye():
+    """A white few views saw is fused into isolated texels, each below the size that starts an eye; they join the
+    eye next to them, so that its opening spans the iris (a 5-view capture lost one eye's lid search without)."""
+    texture = eye_texture(columns=(40, 90))
+    rows, cols = np.mgrid[0:SIZE, 0:SIZE]
+    inner = (((cols - 90) / 14.0) ** 2 + ((rows - 63.5) / 8.0) ** 2 <= 1.0) & (cols < 90)  # the inner half
+    texture[inner & ((rows % 2 == 1) | (cols % 2 == 1))] = SKIN  # single white texels, none touching another
+    scattered = (rows < 30) & (rows % 2 == 0) & (cols % 2 == 0)  # single whites on the brow, far from either eye
+    texture[scattered] = (0.86, 0.85, 0.83)
+    right = lambda hulls: max(hulls, key=lambda h: h[:, 0].mean())  # noqa: E731
+    whole, cut = right(find_openings(texture)), right(find_openings(texture, join_fragments=False))
+    assert 24 <= np.ptp(whole[:, 0]) <= 30 and abs(whole[:, 0].mean() - 90) < 3.0  # the almond, iris included
+    assert np.ptp(cut[:, 0]) < 16 and cut[:, 0].min() >= 89  # the outer half alone
+    assert all(h[:, 1].min() > 50 for h in find_openings(texture))  # the brow's specks join nothing, start nothing
+
+
 def test_whites_on_the_socket_too_large_or_below_the_mouth_are_no_eyes(eye):
     texture = eye_texture(columns=(40, 90))
     teeth = np.zeros((SIZE, SIZE), dtype=bool)
