@@ -300,6 +300,8 @@ def search_lids(mesh: TexturedMesh, targets, texture: torch.Tensor, mask_texture
                  f"better, under {MIN_GAIN:.0%}; {len(rigs)} eyes, {len(tried)} poses, {entry['seconds']:.1f} s)")
         return mesh, entry
     at_end = " (the search's end: the rig fits these lids poorly)" if best >= float(max_deg) - FINE_STEP_DEG else ""
-    progress(f"lids: closed {best:.1f} deg over {len(rigs)} eyes{at_end} (colour {at_zero:.5f} -> {scores[best]:.5f}; "
-             f"{entry['seconds']:.1f} s)")
+    one = (" (one eye's white found in the shared texture: the other lid is left to the flow and the descent)"
+           if len(rigs) == 1 else "")
+    progress(f"lids: closed {best:.1f} deg over {len(rigs)} eyes{at_end}{one} (colour {at_zero:.5f} -> "
+             f"{scores[best]:.5f}; {entry['seconds']:.1f} s)")
     return mesh.with_vertices(pose_lids(mesh.V, rigs, best)), entry

@@ -174,9 +174,11 @@ def lid_scene(eye, degrees):
 
 def test_the_search_recovers_a_closing_seen_in_the_references(eye):
     closed, targets, texture, mask = lid_scene(eye, 15.0)
-    posed, entry = search_lids(eye[0], targets, texture, mask, 90.0, progress=lambda s: None)
+    said = []
+    posed, entry = search_lids(eye[0], targets, texture, mask, 90.0, progress=said.append)
     assert entry["closing_deg"] == pytest.approx(15.0, abs=FINE_STEP_DEG + EXACT)
     assert entry["score"] < entry["score_at_start"] and entry["eyes"] == 1
+    assert "one eye's white found" in said[-1]  # a lid closed alone is said in the log
     assert np.abs(posed.V - closed).max() < 0.5
 
 
