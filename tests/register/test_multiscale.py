@@ -246,6 +246,33 @@ def test_flow_stages_run_before_the_first_levels_and_are_logged_and_saved():
     assert [lv["stage"] for lv in log.levels] == ["level"] * 3
 
 
+def test_a_final_flow_stage_runs_after_the_last_level_and_moves_the_slid_texture_back():
+    """``flow_final_rounds``: one more flow stage after the last level, logged and saved as ``flow_final``, with
+    its own number of rounds; on the sphere turned 16 degrees, whose descent alone leaves the texture slid, it
+    brings the front closer to the turn than the schedule without it; off with the colour constraint."""
+    from tests.register.test_flow import FLOW_TURN_DEG, sphere_scene
+
+    template, texture, targets, truth = sphere_scene(FLOW_TURN_DEG, size=64)
+    front = template.V[:, 2] > 20.0
+
+    def front_error(result):
+        return float(np.median(np.linalg.norm(result.V[: len(truth)] - truth, axis=1)[front]))
+
+    common = dict(lambdas=(10.0,), iterations=(5,), lr_fraction=0.1)
+    saved = []
+    kwargs = dict(texture=texture, mask_texture=torch.ones(4, 4, 1), progress=lambda m: None, progress_every=0)
+    without, _ = optimise(template, targets, Switches(), Schedule(**common), **kwargs)
+    with_final, log = optimise(template, targets, Switches(), Schedule(**common, flow_final_rounds=3),
+                               on_stage=lambda name, mesh: saved.append(name), **kwargs)
+    assert [lv["stage"] for lv in log.levels] == ["level", "flow_final"]
+    assert saved == ["level1", "flow_final"] and len(log.levels[1]["rounds"]) == 3
+    assert front_error(with_final) < 0.5 * front_error(without)
+    _, log = optimise(template, targets, Switches(color=False), Schedule(**common, flow_final_rounds=3), **kwargs)
+    assert [lv["stage"] for lv in log.levels] == ["level"]
+    with pytest.raises(ValueError, match="flow_final_rounds"):
+        Schedule(flow_final_rounds=-1)
+
+
 def test_without_a_warm_up_the_first_flow_stage_tells_the_hold_what_moves():
     """The sphere's texture turned 16 degrees about +Y: the first flow stage moves the equator by
     millimetres and the poles hardly; with ``hold_tangential`` and no warm-up its displacement weighs the
