@@ -63,6 +63,8 @@ STAY_WEIGHT = 1e-3
 #: matches change too much)
 SOLVE_RTOL = 1e-6
 SOLVE_MAX_CG = 100
+#: The pyramid level OpenCV's DIS medium preset stops at (half size): the flow stages as first written.
+PRESET_FINEST_SCALE = 1
 
 
 @dataclass(frozen=True)
@@ -94,7 +96,7 @@ class FlowSettings:
     spread_mm: float = 2.0
     still_mm: float = 0.0
     chroma: float = 0.0
-    finest_scale: int = 1
+    finest_scale: int = PRESET_FINEST_SCALE
     cholesky: str = DEFAULT_BACKEND
 
 
@@ -126,7 +128,7 @@ def to_match_u8(image: np.ndarray, chroma: float) -> np.ndarray:
     return np.clip(255.0 * grey + 0.5, 0, 255).astype(np.uint8)
 
 
-def dense_flow(source: np.ndarray, target: np.ndarray, finest_scale: int = 1) -> np.ndarray:
+def dense_flow(source: np.ndarray, target: np.ndarray, finest_scale: int = PRESET_FINEST_SCALE) -> np.ndarray:
     """(H, W, 2) float32 flow (px) taking ``source`` pixels to ``target`` (uint8 (H, W) images).
 
     OpenCV's DIS flow (coarse-to-fine patch search with variational refinement): it reaches
@@ -169,7 +171,7 @@ def unproject(camera: Camera, xy: np.ndarray, depth: np.ndarray) -> np.ndarray:
 
 def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.ndarray, render_grey: np.ndarray,
                  render_depth: np.ndarray, reference_grey: np.ndarray, scan_depth: np.ndarray,
-                 scan_coverage: np.ndarray, fb_tolerance_px: float, finest_scale: int = 1
+                 scan_coverage: np.ndarray, fb_tolerance_px: float, finest_scale: int = PRESET_FINEST_SCALE
                  ) -> tuple[np.ndarray, np.ndarray]:
     """The matched scan points of the vertices in one view.
 
