@@ -12,7 +12,9 @@ pixels away.
 One round:
 
 1. Render the mesh with the shared texture and the capture's lighting in every view (the colour
-   the colour constraint compares), and its depth (visibility).
+   the colour constraint compares), and its depth (visibility). With ``scan_shading_px`` (beyond the stage
+   as first written) the render is shaded by the scan's normals where the scan covers the pixel, as the
+   texture's fusion divided the photographs by them (:func:`shade_by_scan`).
 2. Flow render -> reference and reference -> render per view, on gamma-encoded grey images.
 3. Each vertex visible in a view (its depth matches the rendered depth, it faces the camera, it is
    not in the mouth socket) moves to ``p' = p + flow(p)`` in that view. The match is kept when the
@@ -35,7 +37,7 @@ No ground truth is read: only the reference images, the scan's depth and the sha
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -65,6 +67,13 @@ SOLVE_RTOL = 1e-6
 SOLVE_MAX_CG = 100
 #: The pyramid level OpenCV's DIS medium preset stops at (half size): the flow stages as first written.
 PRESET_FINEST_SCALE = 1
+#: ``FlowSettings.scan_shading_px``: a pixel is shaded by the scan's normal where the scan covers at least this much
+#: of it (the texture fusion's test for a texel seen on the scan, ``gpja.register.texture_fusion``)
+SCAN_SHADING_COVERAGE = 0.999
+#: ... and where the render's depth lies within these (mm) of the scan's: wholly up to the first, not from the second
+#: on, linear between. A part the expression moves by more (an open jaw over a closed one) keeps its own shading,
+#: whose shadows and highlights move with it and guide the flow over tens of pixels.
+SCAN_SHADING_NEAR_MM = (0.5, 1.5)
 
 
 @dataclass(frozen=True)
@@ -83,6 +92,12 @@ class FlowSettings:
             first written; :func:`to_match_u8`).
         finest_scale: the finest pyramid level DIS flow computes its field at (0 = the full image; 1 = half size and
             upsampled, OpenCV's medium preset and the stage as first written; :func:`dense_flow`).
+        scan_shading_px: None = the render is shaded by the mesh's own normals (the stage as first written); a
+            number = by the scan's normal images blurred by this Gaussian sigma (px) where the scan covers the
+            pixel (:func:`shade_by_scan`); the texture fusion's ``fusion_normal_blur_px`` is the consistent value.
+        own_shading_rounds: with ``scan_shading_px``, the first this many rounds still shade by the mesh's own
+            normals: a first stage's first round follows motions of tens of pixels (a closing jaw), whose shadows
+            move with the surface; the later rounds only correct what is left.
         cholesky: the backend of the displacement solve's factor (:mod:`gpja.cholesky`): ``"simplicial"``
             (cholespy, the stage as first written, the default) or ``"supernodal"``, which factors the
             40K-vertex level's system 8x faster (the two flow stages 15.7 -> 11.8 s). The displacements
@@ -98,6 +113,8 @@ class FlowSettings:
     chroma: float = 0.0
     finest_scale: int = PRESET_FINEST_SCALE
     cholesky: str = DEFAULT_BACKEND
+    scan_shading_px: float | None = None
+    own_shading_rounds: int = 0
 
 
 def to_grey_u8(image: np.ndarray) -> np.ndarray:
@@ -296,6 +313,46 @@ def socket_vertices(mesh: TexturedMesh, mask_texture: torch.Tensor) -> np.ndarra
     return inside <= 0.5
 
 
+def shade_by_scan(albedo: np.ndarray, render_depth: np.ndarray, own_colour: np.ndarray, scan_normal: np.ndarray,
+                  scan_depth: np.ndarray, scan_coverage: np.ndarray, sh: torch.Tensor, blur_px: float) -> np.ndarray:
+    """One view's render, shaded by the scan's normals where the rendered surface lies on the scan.
+
+    Why (``FlowSettings.scan_shading_px``; docs/experiments.md, "The flow's render shaded by the scan"): the shared
+    texture is the photographs divided by the shading of the scan's blurred normals (``fusion_scan_normals``), and
+    the template is a decimation of the dense fit those texels were read on. On the nose its interpolated normals
+    differ from the scan's, and so does its shading: the template rendered against its own expression's references
+    gives a flow of 0.9-1.3 px on the nose in the side views, 0.1 px on the rest of the face. The flow reads that
+    as motion and slides the nose along the surface. Shaded by the scan's normals, the same render gives 0.1-0.4 px.
+    Only where the render's depth is within :data:`SCAN_SHADING_NEAR_MM` of the scan's (a ramp between the two):
+    elsewhere the pixel shows another part of the surface than the scan does (the chin of an open jaw over a
+    closed one's neck), and the shading of its own shape is what lets the flow follow it.
+
+    Args:
+        albedo: (H, W, 3) float64 the render's texture colour (linear). render_depth: (H, W) float64 camera depth
+            of the render, mm (0 = empty). own_colour: (H, W, 3) float64 the render shaded by the mesh's normals.
+        scan_normal: (H, W, 3) float world unit normals of the scan; scan_depth: (H, W) float its camera depth,
+            mm; scan_coverage: (H, W) float in [0, 1].
+        sh: (9, 3) the capture's SH lighting. blur_px: Gaussian sigma (px) of the normals' blur (0 = none).
+    Returns:
+        (H, W, 3) float64 linear colour.
+    """
+    from gpja.lighting import shade_lambertian
+    from gpja.register.lighting_estimate import blurred_normals
+
+    normal = np.asarray(scan_normal, dtype=np.float64)
+    if blur_px > 0:
+        normal = blurred_normals(normal, scan_coverage, float(blur_px)).astype(np.float64)
+    near, far = SCAN_SHADING_NEAR_MM
+    gap = np.abs(np.asarray(render_depth) - np.asarray(scan_depth))
+    weight = np.clip((far - gap) / (far - near), 0.0, 1.0)
+    use = (np.asarray(render_depth) > 0) & (np.asarray(scan_coverage) >= SCAN_SHADING_COVERAGE) & (weight > 0)
+    out = np.array(own_colour, dtype=np.float64)
+    shaded = shade_lambertian(torch.from_numpy(albedo[use]), torch.from_numpy(normal[use]), sh.double()).numpy()
+    w = weight[use][:, None]
+    out[use] = w * shaded + (1.0 - w) * out[use]
+    return out
+
+
 def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.Tensor, mask_texture: torch.Tensor,
                 settings: FlowSettings, render: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The flow targets of ``mesh``'s vertices: target (n, 3) mm (NaN = none) and weight (n,).
@@ -305,29 +362,39 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
     expressions, every flow stage of the default schedule slid the vertices 0.2-0.3 mm down the slopes
     (docs/experiments.md, "The nose slides"). Read as "stays", such a match holds its vertex where the
     descent left it, and the descent, whose basin is a few pixels, aligns what is left. Large motions (a
-    closing jaw, 5-20 mm) are kept as they are.
+    closing jaw, 5-20 mm) are kept as they are. ``settings.scan_shading_px``: :func:`shade_by_scan`.
     """
-    from gpja.render import Topology, render_views, vertex_normals
+    from gpja.render import Topology, render_views, sample_texture, vertex_normals
 
     render = render or render_views
     V = torch.tensor(mesh.V, dtype=torch.float32)
     topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
+    by_scan = settings.scan_shading_px is not None
+    passes = ("color", "depth", "mask", "uv") if by_scan else ("color", "depth", "mask")
     with torch.no_grad():
-        out = render(V, topo, targets.cameras, ("color", "depth", "mask"), uv=torch.tensor(mesh.UV, dtype=torch.float32),
+        out = render(V, topo, targets.cameras, passes, uv=torch.tensor(mesh.UV, dtype=torch.float32),
                      texture=texture, mask_texture=mask_texture, sh=targets.sh, antialias_edges=False,
                      cull_backfaces=True)
         colour = out.dense("color").double().numpy()
         depth = out.dense("depth").double().numpy()[..., 0]
         normals = vertex_normals(torch.from_numpy(mesh.V), torch.from_numpy(mesh.F)).numpy()
+        if by_scan:
+            uv = out.dense("uv")
+            albedo = sample_texture(texture.float(), uv.reshape(-1, 2).float()).double().numpy().reshape(colour.shape)
+            scan_normals = targets.normal.double().numpy()
+            colour = np.stack([shade_by_scan(albedo[b], depth[b], colour[b], scan_normals[b],
+                                             targets.depth[b, ..., 0].double().numpy(),
+                                             targets.coverage[b, ..., 0].double().numpy(), targets.sh,
+                                             float(settings.scan_shading_px))
+                               for b in range(len(targets.cameras))])
     # the socket: vertices whose texture is masked out (mouth interior) do not match
     use = ~socket_vertices(mesh, mask_texture)
     images = targets.images.double().numpy()
     scan_depth = targets.depth.double().numpy()[..., 0]
     scan_cov = targets.coverage.double().numpy()[..., 0]
     per_view = np.full((len(targets.cameras), len(mesh.V), 3), np.nan)
-    facing_all = np.zeros((len(targets.cameras), len(mesh.V)))
     for b, camera in enumerate(targets.cameras):
-        per_view[b], facing_all[b] = view_matches(
+        per_view[b], _ = view_matches(
             camera, mesh.V, normals, use, to_match_u8(colour[b], settings.chroma), depth[b],
             to_match_u8(images[b], settings.chroma), scan_depth[b],
             scan_cov[b], settings.fb_tolerance_px, settings.finest_scale)
@@ -356,7 +423,8 @@ def align_by_flow(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch
     base = mesh
     system = smoothness_system(base.F, len(base.V), settings.smoothness)  # the same every round
     for k in range(int(settings.rounds)):
-        target, weight = match_round(mesh, targets, texture, mask_texture, settings, render)
+        shading = settings if k >= settings.own_shading_rounds else replace(settings, scan_shading_px=None)
+        target, weight = match_round(mesh, targets, texture, mask_texture, shading, render)
         matched = np.isfinite(target).all(1)
         # the whole displacement from the start is re-solved each round, so the matches' noise does not add up
         d = solve_displacement(base.V, base.F, target, weight, settings.smoothness, settings.spread_mm, system,

@@ -177,6 +177,10 @@ class Schedule:
             outline is a chroma edge.
         flow_finest_scale: the pyramid level the flow's field is computed at (1 = half size, OpenCV's medium
             preset and the stage as first written; 0 = the full image; ``gpja.register.flow.dense_flow``).
+        flow_scan_shading_px: None = the flow stages compare the mesh's render shaded by its own normals (the stage
+            as first written); a number = shaded by the scan's normal images blurred by this sigma (px) where the
+            scan covers the pixel (beyond the paper; ``gpja.register.flow.shade_by_scan``: the shared texture is the
+            photographs divided by that shading, and the coarse levels' normals differ from it on the nose).
         flow_cholesky: the sparse Cholesky backend of the flow stage's displacement solve (``gpja.cholesky``):
             ``simplicial`` (cholespy, the stage as first written) or ``supernodal`` (CHOLMOD's supernodal factor
             through cvxopt: faster to factor, the same displacements to rounding; ``FlowSettings.cholesky``).
@@ -255,6 +259,7 @@ class Schedule:
     flow_still_mm: float = FlowSettings.still_mm
     flow_chroma: float = FlowSettings.chroma
     flow_finest_scale: int = FlowSettings.finest_scale
+    flow_scan_shading_px: float | None = FlowSettings.scan_shading_px
     flow_cholesky: str = FlowSettings.cholesky
     color_gradient: str = "full"
     average_iterations: int = 0
@@ -325,6 +330,8 @@ class Schedule:
             raise ValueError(f"flow_chroma must be >= 0, got {self.flow_chroma}")
         if int(self.flow_finest_scale) not in (0, 1, 2):
             raise ValueError(f"flow_finest_scale must be 0, 1 or 2, got {self.flow_finest_scale}")
+        if self.flow_scan_shading_px is not None and not float(self.flow_scan_shading_px) >= 0.0:
+            raise ValueError(f"flow_scan_shading_px must be null or >= 0, got {self.flow_scan_shading_px}")
         if self.flow_cholesky not in CHOLESKY_BACKENDS:
             raise ValueError(f"flow_cholesky must be one of {', '.join(CHOLESKY_BACKENDS)}, got {self.flow_cholesky!r}")
         if self.face_order not in FACE_ORDERS:
@@ -733,7 +740,10 @@ def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedul
     rounds = int(schedule.flow_rounds) if rounds is None else int(rounds)
     settings = FlowSettings(rounds=rounds, smoothness=float(schedule.flow_smoothness),
                             still_mm=float(schedule.flow_still_mm), chroma=float(schedule.flow_chroma),
-                            finest_scale=int(schedule.flow_finest_scale), cholesky=schedule.flow_cholesky)
+                            finest_scale=int(schedule.flow_finest_scale), cholesky=schedule.flow_cholesky,
+                            scan_shading_px=(None if schedule.flow_scan_shading_px is None
+                                             else float(schedule.flow_scan_shading_px)),
+                            own_shading_rounds=1 if name == "flow" else 0)
     mesh, entry = align_by_flow(mesh, targets, texture, mask_texture, settings, render=render, progress=progress)
     log.levels.append({**entry, "stage": name})
     if schedule.lip_seal is not None and last:

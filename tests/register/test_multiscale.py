@@ -304,6 +304,8 @@ def test_flow_settings_are_checked():
         Schedule(flow_rounds=-1)
     with pytest.raises(ValueError, match="flow_smoothness"):
         Schedule(flow_smoothness=0.0)
+    with pytest.raises(ValueError, match="flow_scan_shading_px"):
+        Schedule(flow_scan_shading_px=-1.0)
 
 
 def test_a_hold_gated_by_the_scan_frees_what_starts_off_it():
