@@ -13,8 +13,8 @@ One round:
 
 1. Render the mesh with the shared texture and the capture's lighting in every view (the colour
    the colour constraint compares), and its depth (visibility). With ``scan_shading_px`` (beyond the stage
-   as first written) the render is shaded by the scan's normals where the scan covers the pixel, as the
-   texture's fusion divided the photographs by them (:func:`shade_by_scan`).
+   as first written) the render is shaded by the scan's normals where it lies on the scan, as the texture's
+   fusion divided the photographs by them (:func:`shade_by_scan`), except in the first ``own_shading_rounds``.
 2. Flow render -> reference and reference -> render per view, on gamma-encoded grey images.
 3. Each vertex visible in a view (its depth matches the rendered depth, it faces the camera, it is
    not in the mouth socket) moves to ``p' = p + flow(p)`` in that view. The match is kept when the
@@ -94,7 +94,8 @@ class FlowSettings:
             upsampled, OpenCV's medium preset and the stage as first written; :func:`dense_flow`).
         scan_shading_px: None = the render is shaded by the mesh's own normals (the stage as first written); a
             number = by the scan's normal images blurred by this Gaussian sigma (px) where the scan covers the
-            pixel (:func:`shade_by_scan`); the texture fusion's ``fusion_normal_blur_px`` is the consistent value.
+            pixel and the render lies on it (:func:`shade_by_scan`); the texture fusion's ``fusion_normal_blur_px``
+            is the consistent value.
         own_shading_rounds: with ``scan_shading_px``, the first this many rounds still shade by the mesh's own
             normals: a first stage's first round follows motions of tens of pixels (a closing jaw), whose shadows
             move with the surface; the later rounds only correct what is left.
