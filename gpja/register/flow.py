@@ -67,10 +67,8 @@ SOLVE_RTOL = 1e-6
 SOLVE_MAX_CG = 100
 #: The pyramid level OpenCV's DIS medium preset stops at (half size): the flow stages as first written.
 PRESET_FINEST_SCALE = 1
-#: ``FlowSettings.scan_shading_px``: a pixel is shaded by the scan's normal where the scan covers at least this much
-#: of it (the texture fusion's test for a texel seen on the scan, ``gpja.register.texture_fusion``)
-SCAN_SHADING_COVERAGE = 0.999
-#: ... and where the render's depth lies within these (mm) of the scan's: wholly up to the first, not from the second
+#: ``FlowSettings.scan_shading_px``: a pixel the scan covers fully (``lighting_estimate.MIN_COVERAGE``, the lighting
+#: estimate's test) is shaded by the scan's normal where the render's depth lies within these (mm) of the scan's: wholly up to the first, not from the second
 #: on, linear between. A part the expression moves by more (an open jaw over a closed one) keeps its own shading,
 #: whose shadows and highlights move with it and guide the flow over tens of pixels.
 SCAN_SHADING_NEAR_MM = (0.5, 1.5)
@@ -338,7 +336,7 @@ def shade_by_scan(albedo: np.ndarray, render_depth: np.ndarray, own_colour: np.n
         (H, W, 3) float64 linear colour.
     """
     from gpja.lighting import shade_lambertian
-    from gpja.register.lighting_estimate import blurred_normals
+    from gpja.register.lighting_estimate import MIN_COVERAGE, blurred_normals
 
     normal = np.asarray(scan_normal, dtype=np.float64)
     if blur_px > 0:
@@ -346,7 +344,7 @@ def shade_by_scan(albedo: np.ndarray, render_depth: np.ndarray, own_colour: np.n
     near, far = SCAN_SHADING_NEAR_MM
     gap = np.abs(np.asarray(render_depth) - np.asarray(scan_depth))
     weight = np.clip((far - gap) / (far - near), 0.0, 1.0)
-    use = (np.asarray(render_depth) > 0) & (np.asarray(scan_coverage) >= SCAN_SHADING_COVERAGE) & (weight > 0)
+    use = (np.asarray(render_depth) > 0) & (np.asarray(scan_coverage) >= MIN_COVERAGE) & (weight > 0)
     out = np.array(own_colour, dtype=np.float64)
     shaded = shade_lambertian(torch.from_numpy(albedo[use]), torch.from_numpy(normal[use]), sh.double()).numpy()
     w = weight[use][:, None]
@@ -372,6 +370,8 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
     topo = Topology(torch.from_numpy(mesh.F), torch.from_numpy(mesh.F_uv))
     by_scan = settings.scan_shading_px is not None
     passes = ("color", "depth", "mask", "uv") if by_scan else ("color", "depth", "mask")
+    scan_depth = targets.depth.double().numpy()[..., 0]
+    scan_cov = targets.coverage.double().numpy()[..., 0]
     with torch.no_grad():
         out = render(V, topo, targets.cameras, passes, uv=torch.tensor(mesh.UV, dtype=torch.float32),
                      texture=texture, mask_texture=mask_texture, sh=targets.sh, antialias_edges=False,
@@ -383,16 +383,12 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
             uv = out.dense("uv")
             albedo = sample_texture(texture.float(), uv.reshape(-1, 2).float()).double().numpy().reshape(colour.shape)
             scan_normals = targets.normal.double().numpy()
-            colour = np.stack([shade_by_scan(albedo[b], depth[b], colour[b], scan_normals[b],
-                                             targets.depth[b, ..., 0].double().numpy(),
-                                             targets.coverage[b, ..., 0].double().numpy(), targets.sh,
-                                             float(settings.scan_shading_px))
+            colour = np.stack([shade_by_scan(albedo[b], depth[b], colour[b], scan_normals[b], scan_depth[b],
+                                             scan_cov[b], targets.sh, float(settings.scan_shading_px))
                                for b in range(len(targets.cameras))])
     # the socket: vertices whose texture is masked out (mouth interior) do not match
     use = ~socket_vertices(mesh, mask_texture)
     images = targets.images.double().numpy()
-    scan_depth = targets.depth.double().numpy()[..., 0]
-    scan_cov = targets.coverage.double().numpy()[..., 0]
     per_view = np.full((len(targets.cameras), len(mesh.V), 3), np.nan)
     for b, camera in enumerate(targets.cameras):
         per_view[b], _ = view_matches(

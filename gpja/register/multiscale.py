@@ -179,7 +179,7 @@ class Schedule:
             preset and the stage as first written; 0 = the full image; ``gpja.register.flow.dense_flow``).
         flow_scan_shading_px: None = the flow stages compare the mesh's render shaded by its own normals (the stage
             as first written); a number = shaded by the scan's normal images blurred by this sigma (px) where the
-            scan covers the pixel (beyond the paper; ``gpja.register.flow.shade_by_scan``: the shared texture is the
+            render lies on the scan, from the first stage's second round on (beyond the paper; ``gpja.register.flow.shade_by_scan``: the shared texture is the
             photographs divided by that shading, and the coarse levels' normals differ from it on the nose).
         flow_cholesky: the sparse Cholesky backend of the flow stage's displacement solve (``gpja.cholesky``):
             ``simplicial`` (cholespy, the stage as first written) or ``supernodal`` (CHOLMOD's supernodal factor
