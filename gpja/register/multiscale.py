@@ -135,6 +135,11 @@ class Schedule:
             weights only rise, ``TangentialHold.reanchored``). Stage by stage, the mouths were best right after a
             flow stage and the descent of the fine levels gave 0.1-0.9 mm back, rolling a funneler's lower lip
             inwards where the lips' uniform colour says nothing.
+        hold_moved_at_flow: False (off, the hold as first written) or True: after the last flow stage, the
+            vertices the hold leaves mostly free (weight below 0.5: what the first flow stage moved, what lay off
+            the scan) are anchored where that stage put them, with weight ``1 - weight``
+            (``TangentialHold.reanchored``: the weights only rise). Stage by stage, the fine levels' descent slid the jaw, the neck and the lips along
+            the scan, where the skin's uniform colour says nothing, away from where the last flow stage put them.
         mouth_stiffness: (factor, near, far) or None (off, the paper's one lambda everywhere): each level's
             lambda is multiplied by ``factor`` on the triangles within ``near`` mm of the mouth's socket (the
             template's mouth mask) and by 1 from ``far`` mm on, linear between (:func:`mouth_face_weight`). The
@@ -244,6 +249,7 @@ class Schedule:
     hold_mouth_mm: tuple[float, float] | None = None
     mouth_stiffness: tuple[float, float, float] | None = None
     hold_mouth_at_flow_mm: tuple[float, float] | None = None
+    hold_moved_at_flow: bool = False
     spring_rate: float = 0.0
     flow_rounds: int = 0
     flow_levels: int = 1
@@ -683,15 +689,23 @@ def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, tar
 
 def hold_mouth_at_flow(hold: TangentialHold, mesh: TexturedMesh, schedule: Schedule, mask_texture: torch.Tensor,
                        progress: Callable[[str], None], stage: str) -> TangentialHold:
-    """``hold`` anchored around the mouth where the last flow stage (``stage``) put ``mesh``
-    (``schedule.hold_mouth_at_flow_mm``; the hold unchanged when that is None)."""
-    if schedule.hold_mouth_at_flow_mm is None:
-        return hold
-    from gpja.register.flow import socket_vertices
+    """``hold`` anchored where the last flow stage (``stage``) put ``mesh``: around the mouth
+    (``schedule.hold_mouth_at_flow_mm``) and, with ``schedule.hold_moved_at_flow``, wherever the hold left the
+    vertices free (weight ``1 - hold.weight``); the hold unchanged when neither is set."""
+    near = np.zeros(len(mesh.V))
+    if schedule.hold_mouth_at_flow_mm is not None:
+        from gpja.register.flow import socket_vertices
 
-    near = 1.0 - mouth_factor(mesh.V, socket_vertices(mesh, mask_texture), tuple(schedule.hold_mouth_at_flow_mm))
-    progress(f"hold: {np.mean(near > 0):.0%} of the vertices anchored where {stage} put the mouth "
-             f"({np.mean(near >= 1):.0%} held fully)")
+        near = 1.0 - mouth_factor(mesh.V, socket_vertices(mesh, mask_texture), tuple(schedule.hold_mouth_at_flow_mm))
+        progress(f"hold: {np.mean(near > 0):.0%} of the vertices anchored where {stage} put the mouth "
+                 f"({np.mean(near >= 1):.0%} held fully)")
+    if schedule.hold_moved_at_flow:
+        free = 1.0 - np.asarray(hold.weight, dtype=np.float64)
+        free = np.where(free > 0.5, free, 0.0)  # the held majority keeps its anchor at the registration's start
+        progress(f"hold: {np.mean(free > 0):.0%} of the vertices it left free anchored where {stage} put them")
+        near = np.maximum(near, free)
+    if not np.any(near > 0):
+        return hold
     return hold.reanchored(mesh.V, mesh.F, near)
 
 

@@ -248,3 +248,31 @@ def test_schedule_refuses_bad_springs(bad):
 def test_schedule_refuses_a_bad_hold(bad):
     with pytest.raises(ValueError, match="hold"):
         Schedule(lambdas=(10.0,), iterations=(1,), **bad)
+
+
+def test_the_hold_anchors_what_it_left_free_where_the_last_flow_stage_put_it():
+    """``hold_moved_at_flow``: the vertices the hold leaves mostly free (weight below 0.5) are anchored at the flow
+    stage's positions with weight ``1 - weight``; the held ones keep their start and weight. Off, with no mouth
+    anchor either, the hold is the same object."""
+    from gpja.register.multiscale import hold_mouth_at_flow
+
+    mesh = grid(8)
+    hold = TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5))
+    weight = np.linspace(0.0, 1.0, len(mesh.V))
+    hold = TangentialHold(hold.start, hold.normals, weight, 0.1, 0.0, hold.edges)
+    moved = mesh.with_vertices(mesh.V + np.array([0.5, -0.25, 0.0]))  # where the last flow stage put every vertex
+    schedule = dict(lambdas=(10.0,), iterations=(1,), hold_tangential=0.1)
+    messages = []
+    again = hold_mouth_at_flow(hold, moved, Schedule(**schedule, hold_moved_at_flow=True), None, messages.append,
+                               "flow2")
+    free = weight < 0.5
+    assert free.any() and (~free).any()
+    np.testing.assert_array_equal(again.start[free], moved.V[free])
+    np.testing.assert_array_equal(again.start[~free], hold.start[~free])
+    np.testing.assert_array_equal(again.weight, np.where(free, 1.0 - weight, weight))
+    assert messages == [f"hold: {np.mean(free):.0%} of the vertices it left free anchored where flow2 put them"]
+    # at the flow's positions the anchored vertices are not pulled back, the held ones are
+    dx = again.correction(torch.from_numpy(moved.V)).numpy()
+    np.testing.assert_allclose(dx[free], 0.0, atol=EXACT)
+    np.testing.assert_allclose(dx[~free], -0.1 * weight[~free, None] * np.array([0.5, -0.25, 0.0]), atol=EXACT)
+    assert hold_mouth_at_flow(hold, moved, Schedule(**schedule), None, messages.append, "flow2") is hold
