@@ -387,6 +387,8 @@ class Schedule:
                 or not 0.0 <= float(self.hold_mouth_at_flow_mm[0]) < float(self.hold_mouth_at_flow_mm[1])):
             raise ValueError(f"hold_mouth_at_flow_mm must be null or two distances 0 <= held < free (mm), got "
                              f"{self.hold_mouth_at_flow_mm}")
+        if not isinstance(self.hold_moved_at_flow, (bool, np.bool_)):
+            raise ValueError(f"hold_moved_at_flow must be true or false, got {self.hold_moved_at_flow!r}")
         if self.jaw_lips_mm is not None and (len(self.jaw_lips_mm) != 2
                                              or not -30.0 <= float(self.jaw_lips_mm[0]) <= 0.0
                                              <= float(self.jaw_lips_mm[1]) <= 30.0):

@@ -244,7 +244,8 @@ def test_schedule_refuses_bad_springs(bad):
                                  {"hold_moved_mm": (2.0, 1.0)}, {"hold_moved_mm": (1.0,)},
                                  {"hold_gap_mm": (2.0, 0.5)}, {"hold_gap_mm": (1.0,)}, {"hold_gap_mm": (-1.0, 1.0)},
                                  {"hold_mouth_mm": (20.0, 10.0)}, {"hold_mouth_mm": (10.0,)}, {"hold_mouth_mm": (-1.0, 5.0)},
-                                 {"hold_mouth_at_flow_mm": (24.0, 12.0)}, {"hold_mouth_at_flow_mm": (12.0,)}])
+                                 {"hold_mouth_at_flow_mm": (24.0, 12.0)}, {"hold_mouth_at_flow_mm": (12.0,)},
+                                 {"hold_moved_at_flow": "yes"}, {"hold_moved_at_flow": 1}])
 def test_schedule_refuses_a_bad_hold(bad):
     with pytest.raises(ValueError, match="hold"):
         Schedule(lambdas=(10.0,), iterations=(1,), **bad)
