@@ -138,8 +138,9 @@ class Schedule:
         hold_moved_at_flow: False (off, the hold as first written) or True: after the last flow stage, the
             vertices the hold leaves mostly free (weight below 0.5: what the first flow stage moved, what lay off
             the scan) are anchored where that stage put them, with weight ``1 - weight``
-            (``TangentialHold.reanchored``: the weights only rise). Stage by stage, the fine levels' descent slid the jaw, the neck and the lips along
-            the scan, where the skin's uniform colour says nothing, away from where the last flow stage put them.
+            (``TangentialHold.reanchored``: the weights only rise). Stage by stage, the fine levels' descent slid
+            the jaw, the neck and the lips along the scan, where the skin's uniform colour says nothing, away from
+            where the last flow stage put them.
         mouth_stiffness: (factor, near, far) or None (off, the paper's one lambda everywhere): each level's
             lambda is multiplied by ``factor`` on the triangles within ``near`` mm of the mouth's socket (the
             template's mouth mask) and by 1 from ``far`` mm on, linear between (:func:`mouth_face_weight`). The
@@ -539,7 +540,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         if schedule.holds and not warmup:  # the first flow stage tells what moves
             hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage", mask_texture, release)
             if flow_levels == 1:
-                hold = hold_mouth_at_flow(hold, mesh, schedule, mask_texture, progress, "flow")
+                hold = anchor_hold_at_flow(hold, mesh, schedule, mask_texture, progress, "flow")
     if warmup:
         start_mesh = mesh
         mesh, entry = optimise_level(mesh, "warm-up", schedule.lambdas[0], int(schedule.warmup_iterations),
@@ -567,7 +568,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
             mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage,
                               f"flow{level + 1}", last=level == flow_levels - 1)
             if hold is not None and level == flow_levels - 1:
-                hold = hold_mouth_at_flow(hold, mesh, schedule, mask_texture, progress, f"flow{level + 1}")
+                hold = anchor_hold_at_flow(hold, mesh, schedule, mask_texture, progress, f"flow{level + 1}")
         mesh, entry = optimise_level(mesh, f"level {level + 1}/{len(schedule.lambdas)}", lam, n_iter, switches,
                                      schedule, schedule.pool(level), hold=hold, level=level, **common)
         entry["seconds"] = round(entry["seconds"] + refine_s, 3)
@@ -689,7 +690,7 @@ def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, tar
     return hold
 
 
-def hold_mouth_at_flow(hold: TangentialHold, mesh: TexturedMesh, schedule: Schedule, mask_texture: torch.Tensor,
+def anchor_hold_at_flow(hold: TangentialHold, mesh: TexturedMesh, schedule: Schedule, mask_texture: torch.Tensor,
                        progress: Callable[[str], None], stage: str) -> TangentialHold:
     """``hold`` anchored where the last flow stage (``stage``) put ``mesh``: around the mouth
     (``schedule.hold_mouth_at_flow_mm``) and, with ``schedule.hold_moved_at_flow``, wherever the hold left the

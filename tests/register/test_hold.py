@@ -255,7 +255,7 @@ def test_the_hold_anchors_what_it_left_free_where_the_last_flow_stage_put_it():
     """``hold_moved_at_flow``: the vertices the hold leaves mostly free (weight below 0.5) are anchored at the flow
     stage's positions with weight ``1 - weight``; the held ones keep their start and weight. Off, with no mouth
     anchor either, the hold is the same object."""
-    from gpja.register.multiscale import hold_mouth_at_flow
+    from gpja.register.multiscale import anchor_hold_at_flow
 
     mesh = grid(8)
     hold = TangentialHold.after_first_phase(mesh, mesh, 0.0, 0.1, (0.75, 2.5))
@@ -264,7 +264,7 @@ def test_the_hold_anchors_what_it_left_free_where_the_last_flow_stage_put_it():
     moved = mesh.with_vertices(mesh.V + np.array([0.5, -0.25, 0.0]))  # where the last flow stage put every vertex
     schedule = dict(lambdas=(10.0,), iterations=(1,), hold_tangential=0.1)
     messages = []
-    again = hold_mouth_at_flow(hold, moved, Schedule(**schedule, hold_moved_at_flow=True), None, messages.append,
+    again = anchor_hold_at_flow(hold, moved, Schedule(**schedule, hold_moved_at_flow=True), None, messages.append,
                                "flow2")
     free = weight < 0.5
     assert free.any() and (~free).any()
@@ -276,4 +276,4 @@ def test_the_hold_anchors_what_it_left_free_where_the_last_flow_stage_put_it():
     dx = again.correction(torch.from_numpy(moved.V)).numpy()
     np.testing.assert_allclose(dx[free], 0.0, atol=EXACT)
     np.testing.assert_allclose(dx[~free], -0.1 * weight[~free, None] * np.array([0.5, -0.25, 0.0]), atol=EXACT)
-    assert hold_mouth_at_flow(hold, moved, Schedule(**schedule), None, messages.append, "flow2") is hold
+    assert anchor_hold_at_flow(hold, moved, Schedule(**schedule), None, messages.append, "flow2") is hold
