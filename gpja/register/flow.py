@@ -57,6 +57,12 @@ VISIBLE_DEPTH_MM = 1.0
 MIN_FACING = 0.3
 #: residual re-weighting passes of the smooth solve
 REWEIGHT_PASSES = 2
+#: a reference pixel is as dark as an open mouth when its grey level is below this fraction of the median grey
+#: of the pixels the scan covers (``FlowSettings.socket_margin_px``; gamma-encoded: an open mouth's inside is 20-40,
+#: the skin 140-170, the lips 120-150 of 255 on the synthetic captures)
+SOCKET_DARK_FRACTION = 0.5
+#: ... and an opening is a dark region at least this wide (px): the dark contact line of closed lips is not one
+OPENING_MIN_PX = 5
 #: weight of the pull of every vertex towards no motion, relative to a match's (1)
 STAY_WEIGHT = 1e-3
 #: relative residual at which the preconditioned solves of the re-weighted systems stop, and their most
@@ -94,6 +100,12 @@ class FlowSettings:
             number = by the scan's normal images blurred by this Gaussian sigma (px) where the scan covers the
             pixel and the render lies on it (:func:`shade_by_scan`); the texture fusion's ``fusion_normal_blur_px``
             is the consistent value.
+        socket_margin_px: beyond the stage as first written (0 = off): a vertex whose pixel in the render lies
+            within this many pixels of the mouth's socket (the rendered mouth mask) keeps its match only where the
+            reference shows a dark opening (``SOCKET_DARK_FRACTION``, ``OPENING_MIN_PX``) within as many pixels of
+            the matched pixel. DIS's patches there straddle the dark socket, which a closed mouth's reference does
+            not show: from the lip funneler's start, the flow slid the middle of S01 ``1_neutral``'s lower lip 4-5
+            mm sideways (docs/experiments.md, "Flow matches beside the socket"; measured, not the default).
         own_shading_rounds: with ``scan_shading_px``, the first this many rounds still shade by the mesh's own
             normals: a first stage's first round follows motions of tens of pixels (a closing jaw), whose shadows
             move with the surface; the later rounds only correct what is left.
@@ -114,6 +126,7 @@ class FlowSettings:
     cholesky: str = DEFAULT_BACKEND
     scan_shading_px: float | None = None
     own_shading_rounds: int = 0
+    socket_margin_px: float = 0.0
 
 
 def to_grey_u8(image: np.ndarray) -> np.ndarray:
@@ -161,6 +174,26 @@ def dense_flow(source: np.ndarray, target: np.ndarray, finest_scale: int = PRESE
     return dis.calc(source, target, None)
 
 
+def within(region: np.ndarray, margin_px: float) -> np.ndarray:
+    """(H, W) bool: pixels closer than ``margin_px`` to a pixel of ``region`` (H, W) bool (OpenCV's exact
+    Euclidean distance transform)."""
+    import cv2
+
+    if not region.any():
+        return np.zeros(region.shape, dtype=bool)
+    distance = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return distance < float(margin_px)
+
+
+def opened(region: np.ndarray, width_px: int) -> np.ndarray:
+    """(H, W) bool ``region`` without its parts narrower than ``width_px`` (a morphological opening by a disc of that
+    diameter, OpenCV's)."""
+    import cv2
+
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (int(width_px), int(width_px)))
+    return cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_OPEN, disc).astype(bool)
+
+
 def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """``image`` (H, W, C) float64 sampled at pixel positions ``xy`` (n, 2) (centres at integers, clamped).
 
@@ -187,8 +220,8 @@ def unproject(camera: Camera, xy: np.ndarray, depth: np.ndarray) -> np.ndarray:
 
 def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.ndarray, render_grey: np.ndarray,
                  render_depth: np.ndarray, reference_grey: np.ndarray, scan_depth: np.ndarray,
-                 scan_coverage: np.ndarray, fb_tolerance_px: float, finest_scale: int = PRESET_FINEST_SCALE
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 scan_coverage: np.ndarray, fb_tolerance_px: float, finest_scale: int = PRESET_FINEST_SCALE,
+                 socket: np.ndarray | None = None, socket_margin_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """The matched scan points of the vertices in one view.
 
     Args:
@@ -198,6 +231,9 @@ def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.nda
         render_depth: (H, W) float64 the mesh's camera depth, mm (0 = empty).
         scan_depth, scan_coverage: (H, W) float64 the scan's depth (mm) and coverage in [0, 1].
         finest_scale: :func:`dense_flow`'s.
+        socket, socket_margin_px: (H, W) bool the render's socket pixels and ``FlowSettings.socket_margin_px``: a
+            vertex within the margin of the socket keeps its match only where the reference shows a dark opening
+            within the margin of the matched pixel too (None or 0 = every match is kept).
     Returns:
         targets: (n, 3) float64 scan points, mm (NaN where no match); facing: (n,) the cosine weight.
     """
@@ -223,6 +259,14 @@ def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.nda
     good = ((np.linalg.norm(f + back, axis=1) < fb_tolerance_px)
             & (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
             & (scan_coverage[qi[:, 1], qi[:, 0]] > 0.999))
+    if socket is not None and socket_margin_px > 0 and socket.any():
+        # an opening in the reference: darker than half the grey of the skin the scan covers, and wide
+        face = scan_coverage > 0.999
+        skin = np.median(reference_grey[face]) if face.any() else np.median(reference_grey)
+        dark = opened(reference_grey < SOCKET_DARK_FRACTION * skin, OPENING_MIN_PX)
+        near_render = within(socket, socket_margin_px)[pix[ok, 1], pix[ok, 0]]
+        near_reference = within(dark, socket_margin_px)[qi[:, 1], qi[:, 0]]
+        good &= ~near_render | near_reference
     cov = bilinear(scan_coverage[..., None], q[good])[:, 0]
     dep = bilinear(scan_depth[..., None], q[good])[:, 0] / np.maximum(cov, 1e-6)
     idx = np.flatnonzero(ok)[good]
@@ -378,6 +422,7 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
                      cull_backfaces=True)
         colour = out.dense("color").double().numpy()
         depth = out.dense("depth").double().numpy()[..., 0]
+        socket_mask = out.dense("mask").double().numpy()[..., 0]
         normals = vertex_normals(torch.from_numpy(mesh.V), torch.from_numpy(mesh.F)).numpy()
         if by_scan:
             uv = out.dense("uv")
@@ -394,7 +439,8 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
         per_view[b], _ = view_matches(
             camera, mesh.V, normals, use, to_match_u8(colour[b], settings.chroma), depth[b],
             to_match_u8(images[b], settings.chroma), scan_depth[b],
-            scan_cov[b], settings.fb_tolerance_px, settings.finest_scale)
+            scan_cov[b], settings.fb_tolerance_px, settings.finest_scale,
+            (socket_mask[b] < 0.5) & (depth[b] > 0), settings.socket_margin_px)
     target, count = combine_views(per_view, settings.spread_mm)
     if settings.still_mm > 0:
         still = np.isfinite(target).all(1) & (np.linalg.norm(target - mesh.V, axis=1) < settings.still_mm)

@@ -178,6 +178,10 @@ class Schedule:
         flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
         flow_still_mm: a flow match that moves its vertex less than this is taken as "stays" (0 = off, the
             stage as first written; ``gpja.register.flow.match_round``).
+        flow_socket_margin_px: beyond the stage as first written (0 = off): in the flow stages, a vertex whose pixel
+            in the render lies within this many pixels of the mouth's socket keeps its match only where the
+            reference shows a dark opening within as many pixels of the matched one (``gpja.register.flow``,
+            ``FlowSettings.socket_margin_px``).
         flow_chroma: weight of the red-green chroma beside the luminance in the image the flow matches (0 =
             luminance alone, the stage as first written; ``gpja.register.flow.to_match_u8``): the lips'
             outline is a chroma edge.
@@ -264,6 +268,7 @@ class Schedule:
     lip_seal: float | None = None
     flow_smoothness: float = FlowSettings.smoothness
     flow_still_mm: float = FlowSettings.still_mm
+    flow_socket_margin_px: float = FlowSettings.socket_margin_px
     flow_chroma: float = FlowSettings.chroma
     flow_finest_scale: int = FlowSettings.finest_scale
     flow_scan_shading_px: float | None = FlowSettings.scan_shading_px
@@ -333,6 +338,8 @@ class Schedule:
             raise ValueError(f"flow_smoothness must be > 0, got {self.flow_smoothness}")
         if not float(self.flow_still_mm) >= 0.0:
             raise ValueError(f"flow_still_mm must be >= 0, got {self.flow_still_mm}")
+        if not float(self.flow_socket_margin_px) >= 0.0:
+            raise ValueError(f"flow_socket_margin_px must be >= 0, got {self.flow_socket_margin_px}")
         if not float(self.flow_chroma) >= 0.0:
             raise ValueError(f"flow_chroma must be >= 0, got {self.flow_chroma}")
         if int(self.flow_finest_scale) not in (0, 1, 2):
@@ -757,6 +764,7 @@ def flow_stage(mesh: TexturedMesh, targets: ExpressionTargets, schedule: Schedul
     rounds = int(schedule.flow_rounds) if rounds is None else int(rounds)
     settings = FlowSettings(rounds=rounds, smoothness=float(schedule.flow_smoothness),
                             still_mm=float(schedule.flow_still_mm), chroma=float(schedule.flow_chroma),
+                            socket_margin_px=float(schedule.flow_socket_margin_px),
                             finest_scale=int(schedule.flow_finest_scale), cholesky=schedule.flow_cholesky,
                             scan_shading_px=(None if schedule.flow_scan_shading_px is None
                                              else float(schedule.flow_scan_shading_px)),

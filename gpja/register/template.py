@@ -96,7 +96,7 @@ class TemplateSettings:
                                                    "mouth_stiffness", "jaw_search_deg", "jaw_lips_mm", "jaw_shift_mm", "jaw_window_mm", "jaw_reach_mm", "lid_search_deg", "lip_seal", "color_gain", "color_scan_px",
                                                    "spring_rate",
                                                    "flow_rounds",
-                                                   "flow_levels", "flow_final_rounds", "flow_smoothness", "flow_still_mm", "flow_chroma", "flow_finest_scale", "flow_scan_shading_px",
+                                                   "flow_levels", "flow_final_rounds", "flow_smoothness", "flow_still_mm", "flow_socket_margin_px", "flow_chroma", "flow_finest_scale", "flow_scan_shading_px",
                                                    "flow_cholesky",
                                                    "color_gradient",
                                                    "average_iterations", "views_per_iteration", "image_factor",

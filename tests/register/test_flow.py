@@ -26,6 +26,8 @@ STAY_SHIFT_MM = 0.01
 #: matches' median error with the render shaded by the scan's normals, as a share of the error with its own
 #: normals (measured 0.377 / 0.534 mm = 0.71).
 SCAN_SHADING_RATIO = 0.85
+#: ``FlowSettings.socket_margin_px`` of the socket tests (px at 128 x 128; the patch is about 20 x 12 px in view 0)
+SOCKET_MARGIN_PX = 6.0
 
 
 def smooth_random_image(size: int, seed: int = 0) -> np.ndarray:
@@ -376,3 +378,71 @@ def test_shading_by_the_scan_takes_a_bumpy_mesh_s_shading_out_of_the_matches():
         assert matched.sum() > 300
         errors.append(np.median(np.linalg.norm(target[matched] - V[matched], axis=1)))
     assert errors[1] < SCAN_SHADING_RATIO * errors[0]
+
+
+def test_within_is_the_euclidean_neighbourhood_of_a_region():
+    """Analytic: one pixel's neighbourhood is the disc of integer offsets closer than the margin; no region, none."""
+    from gpja.register.flow import within
+
+    region = np.zeros((15, 15), dtype=bool)
+    region[7, 7] = True
+    yy, xx = np.mgrid[:15, :15]
+    np.testing.assert_array_equal(within(region, 3.5), np.hypot(xx - 7, yy - 7) < 3.5)
+    assert not within(np.zeros((15, 15), dtype=bool), 3.5).any()
+
+
+def socket_scene(reference_shows_socket: bool, size: int = 128):
+    """The sphere with a dark 'socket' patch of its texture facing camera 0 (mask 0 there), and references of the
+    unmoved sphere that show the patch dark (an open mouth) or the skin's texture in its place (a closed one)."""
+    from gpja.lighting import uniform_sh
+    from gpja.render import Topology, render_views
+    from tests.render.scenes import ring_cameras, sphere, spherical_uv
+
+    V, F = sphere(subdivisions=4, radius=60.0)
+    uv = spherical_uv(V)
+    skin = 0.35 + 0.6 * smooth_random_image(64, seed=2)[..., None].repeat(3, -1) / 255.0
+    mask = np.ones((64, 64, 1))
+    mask[29:36, 27:38] = 0.0  # rows v, columns u around (0.5, 0.5), the +z pole that camera 0 faces
+    texture = np.where(mask > 0, skin, 0.03)
+    cameras, sh = ring_cameras(3, size), torch.tensor(uniform_sh(), dtype=torch.float32)
+    shown = texture if reference_shows_socket else skin
+    ref = render_views(torch.tensor(V, dtype=torch.float32), Topology(torch.from_numpy(F), torch.from_numpy(F)),
+                       cameras, ("color", "depth", "normal"), uv=torch.tensor(uv, dtype=torch.float32),
+                       texture=torch.tensor(shown, dtype=torch.float32), sh=sh)
+    targets = ExpressionTargets(cameras, *(ref.dense(p).detach() for p in ("color", "depth", "normal", "coverage")), sh)
+    return (TexturedMesh(V, F, uv, F), torch.tensor(texture, dtype=torch.float32), torch.tensor(mask, dtype=torch.float32),
+            targets)
+
+
+def test_matches_beside_the_socket_are_dropped_only_where_the_reference_shows_no_opening():
+    """``socket_margin_px``: against references whose patch is skin (a closed mouth), the vertices beside the dark
+    patch lose their matches (62 of 1452 measured), and those away from it keep theirs exactly; against references
+    that show it dark (an open one), only pixels on the patch's antialiased rim are lost (3 measured)."""
+    from gpja.register.flow import match_round
+
+    dropped = {}
+    for shows in (False, True):
+        template, texture, mask, targets = socket_scene(shows)
+        plain, _ = match_round(template, targets, texture, mask, FlowSettings())
+        margin, _ = match_round(template, targets, texture, mask, FlowSettings(socket_margin_px=SOCKET_MARGIN_PX))
+        matched, kept = np.isfinite(plain).all(1), np.isfinite(margin).all(1)
+        assert not (kept & ~matched).any()
+        away = np.linalg.norm(template.UV - 0.5, axis=1) > 0.25
+        np.testing.assert_array_equal(margin[away], plain[away])
+        dropped[shows] = matched & ~kept
+        assert not (dropped[shows] & away).any()
+    assert dropped[False].sum() >= 20 and dropped[True].sum() <= 0.2 * dropped[False].sum()
+
+
+def test_an_opening_keeps_wide_dark_regions_and_drops_thin_lines():
+    """Analytic: a 9 x 9 square survives an opening of width 5 but for its corners (the disc's rounding); a line 2 px
+    thick (closed lips' contact line) vanishes; nothing is added; an empty region stays empty."""
+    from gpja.register.flow import opened
+
+    region = np.zeros((30, 30), dtype=bool)
+    region[5:14, 5:14] = True
+    region[20:22, 2:28] = True
+    out = opened(region, 5)
+    np.testing.assert_array_equal(out[6:13, 6:13], True)
+    assert not (out & ~region).any() and not out[18:].any() and out.sum() >= 81 - 8
+    assert not opened(np.zeros((30, 30), dtype=bool), 5).any()

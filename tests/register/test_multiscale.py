@@ -564,3 +564,13 @@ def test_snap_stage_runs_last_puts_the_mesh_on_the_scan_and_needs_it():
         optimise(mesh, targets, Switches(color=False), Schedule(**common, snap_mm=3.0), **kw)
     with pytest.raises(ValueError, match="snap_mm"):
         Schedule(**common, snap_mm=-1.0)
+
+
+def test_schedule_keeps_the_socket_margin_off_by_default_and_refuses_a_negative_one():
+    """``flow_socket_margin_px``: 0, the default, is the flow stage as first written (``FlowSettings``' default)."""
+    from gpja.register.flow import FlowSettings
+
+    assert Schedule().flow_socket_margin_px == FlowSettings().socket_margin_px == 0.0
+    assert Schedule(flow_socket_margin_px=8).flow_socket_margin_px == 8
+    with pytest.raises(ValueError, match="flow_socket_margin_px"):
+        Schedule(flow_socket_margin_px=-1.0)
