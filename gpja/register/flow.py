@@ -63,6 +63,9 @@ REWEIGHT_PASSES = 2
 SOCKET_DARK_FRACTION = 0.5
 #: ... and an opening is a dark region at least this wide (px): the dark contact line of closed lips is not one
 OPENING_MIN_PX = 5
+#: a view's reference shows the mouth open when the opening's pixels beside the render's socket are at least this
+#: fraction of the socket's (measured: 0.19-0.45 for the lip funnelers' references, 0 for every closed mouth's)
+OPENING_MIN_FRACTION = 0.1
 #: weight of the pull of every vertex towards no motion, relative to a match's (1)
 STAY_WEIGHT = 1e-3
 #: relative residual at which the preconditioned solves of the re-weighted systems stop, and their most
@@ -100,12 +103,13 @@ class FlowSettings:
             number = by the scan's normal images blurred by this Gaussian sigma (px) where the scan covers the
             pixel and the render lies on it (:func:`shade_by_scan`); the texture fusion's ``fusion_normal_blur_px``
             is the consistent value.
-        socket_margin_px: beyond the stage as first written (0 = off): a vertex whose pixel in the render lies
-            within this many pixels of the mouth's socket (the rendered mouth mask) keeps its match only where the
-            reference shows a dark opening (``SOCKET_DARK_FRACTION``, ``OPENING_MIN_PX``) within as many pixels of
-            the matched pixel. DIS's patches there straddle the dark socket, which a closed mouth's reference does
-            not show: from the lip funneler's start, the flow slid the middle of S01 ``1_neutral``'s lower lip 4-5
-            mm sideways (docs/experiments.md, "Flow matches beside the socket"; measured, not the default).
+        socket_margin_px: beyond the stage as first written (0 = off): in a view whose reference shows the mouth
+            closed (no dark opening, ``SOCKET_DARK_FRACTION`` and ``OPENING_MIN_PX``, beside the render's socket:
+            ``OPENING_MIN_FRACTION``), a vertex whose pixel in the render lies within this many pixels of the
+            mouth's socket (the rendered mouth mask) does not match. DIS's patches there straddle a dark socket the
+            reference does not show: from the lip funneler's start, the flow slid the middle of S01 ``1_neutral``'s
+            lower lip 4-5 mm sideways (docs/experiments.md, "Flow matches beside the socket"; measured, not the
+            default).
         own_shading_rounds: with ``scan_shading_px``, the first this many rounds still shade by the mesh's own
             normals: a first stage's first round follows motions of tens of pixels (a closing jaw), whose shadows
             move with the surface; the later rounds only correct what is left.
@@ -231,9 +235,9 @@ def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.nda
         render_depth: (H, W) float64 the mesh's camera depth, mm (0 = empty).
         scan_depth, scan_coverage: (H, W) float64 the scan's depth (mm) and coverage in [0, 1].
         finest_scale: :func:`dense_flow`'s.
-        socket, socket_margin_px: (H, W) bool the render's socket pixels and ``FlowSettings.socket_margin_px``: a
-            vertex within the margin of the socket keeps its match only where the reference shows a dark opening
-            within the margin of the matched pixel too (None or 0 = every match is kept).
+        socket, socket_margin_px: (H, W) bool the render's socket pixels and ``FlowSettings.socket_margin_px``:
+            where the reference shows no opening beside the socket, the vertices within the margin of it do not
+            match (None or 0 = every match is kept).
     Returns:
         targets: (n, 3) float64 scan points, mm (NaN where no match); facing: (n,) the cosine weight.
     """
@@ -264,9 +268,9 @@ def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.nda
         face = scan_coverage > 0.999
         skin = np.median(reference_grey[face]) if face.any() else np.median(reference_grey)
         dark = opened(reference_grey < SOCKET_DARK_FRACTION * skin, OPENING_MIN_PX)
-        near_render = within(socket, socket_margin_px)[pix[ok, 1], pix[ok, 0]]
-        near_reference = within(dark, socket_margin_px)[qi[:, 1], qi[:, 0]]
-        good &= ~near_render | near_reference
+        beside = within(socket, socket_margin_px)
+        if (dark & beside).sum() < OPENING_MIN_FRACTION * socket.sum():  # the reference's mouth is closed
+            good &= ~beside[pix[ok, 1], pix[ok, 0]]
     cov = bilinear(scan_coverage[..., None], q[good])[:, 0]
     dep = bilinear(scan_depth[..., None], q[good])[:, 0] / np.maximum(cov, 1e-6)
     idx = np.flatnonzero(ok)[good]

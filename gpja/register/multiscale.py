@@ -178,10 +178,9 @@ class Schedule:
         flow_smoothness: the smoothness ``mu`` of the flow stage's displacement (dimensionless).
         flow_still_mm: a flow match that moves its vertex less than this is taken as "stays" (0 = off, the
             stage as first written; ``gpja.register.flow.match_round``).
-        flow_socket_margin_px: beyond the stage as first written (0 = off): in the flow stages, a vertex whose pixel
-            in the render lies within this many pixels of the mouth's socket keeps its match only where the
-            reference shows a dark opening within as many pixels of the matched one (``gpja.register.flow``,
-            ``FlowSettings.socket_margin_px``).
+        flow_socket_margin_px: beyond the stage as first written (0 = off): in the flow stages, in a view whose
+            reference shows the mouth closed, a vertex whose pixel in the render lies within this many pixels of the
+            mouth's socket does not match (``gpja.register.flow``, ``FlowSettings.socket_margin_px``).
         flow_chroma: weight of the red-green chroma beside the luminance in the image the flow matches (0 =
             luminance alone, the stage as first written; ``gpja.register.flow.to_match_u8``): the lips'
             outline is a chroma edge.

@@ -416,8 +416,8 @@ def socket_scene(reference_shows_socket: bool, size: int = 128):
 
 def test_matches_beside_the_socket_are_dropped_only_where_the_reference_shows_no_opening():
     """``socket_margin_px``: against references whose patch is skin (a closed mouth), the vertices beside the dark
-    patch lose their matches (62 of 1452 measured), and those away from it keep theirs exactly; against references
-    that show it dark (an open one), only pixels on the patch's antialiased rim are lost (3 measured)."""
+    patch lose their matches, and those away from it keep theirs exactly; against references that show it dark (an
+    open one), every match is kept."""
     from gpja.register.flow import match_round
 
     dropped = {}
@@ -431,7 +431,7 @@ def test_matches_beside_the_socket_are_dropped_only_where_the_reference_shows_no
         np.testing.assert_array_equal(margin[away], plain[away])
         dropped[shows] = matched & ~kept
         assert not (dropped[shows] & away).any()
-    assert dropped[False].sum() >= 20 and dropped[True].sum() <= 0.2 * dropped[False].sum()
+    assert dropped[False].sum() >= 20 and not dropped[True].any()
 
 
 def test_an_opening_keeps_wide_dark_regions_and_drops_thin_lines():
