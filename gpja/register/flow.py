@@ -426,7 +426,9 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
                      cull_backfaces=True)
         colour = out.dense("color").double().numpy()
         depth = out.dense("depth").double().numpy()[..., 0]
-        socket_mask = out.dense("mask").double().numpy()[..., 0]
+        # the socket's pixels (rendered mouth mask 0), only where the margin needs them
+        socket = ((out.dense("mask")[..., 0] < 0.5).numpy() & (depth > 0) if settings.socket_margin_px > 0
+                  else [None] * len(targets.cameras))
         normals = vertex_normals(torch.from_numpy(mesh.V), torch.from_numpy(mesh.F)).numpy()
         if by_scan:
             uv = out.dense("uv")
@@ -444,7 +446,7 @@ def match_round(mesh: TexturedMesh, targets: ExpressionTargets, texture: torch.T
             camera, mesh.V, normals, use, to_match_u8(colour[b], settings.chroma), depth[b],
             to_match_u8(images[b], settings.chroma), scan_depth[b],
             scan_cov[b], settings.fb_tolerance_px, settings.finest_scale,
-            (socket_mask[b] < 0.5) & (depth[b] > 0), settings.socket_margin_px)
+            socket[b], settings.socket_margin_px)
     target, count = combine_views(per_view, settings.spread_mm)
     if settings.still_mm > 0:
         still = np.isfinite(target).all(1) & (np.linalg.norm(target - mesh.V, axis=1) < settings.still_mm)

@@ -697,7 +697,7 @@ def start_hold(start: TexturedMesh, moved: TexturedMesh, schedule: Schedule, tar
 
 
 def anchor_hold_at_flow(hold: TangentialHold, mesh: TexturedMesh, schedule: Schedule, mask_texture: torch.Tensor,
-                       progress: Callable[[str], None], stage: str) -> TangentialHold:
+                        progress: Callable[[str], None], stage: str) -> TangentialHold:
     """``hold`` anchored where the last flow stage (``stage``) put ``mesh``: around the mouth
     (``schedule.hold_mouth_at_flow_mm``) and, with ``schedule.hold_moved_at_flow``, wherever the hold left the
     vertices free (weight ``1 - hold.weight``); the hold unchanged when neither is set."""
