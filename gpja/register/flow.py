@@ -48,6 +48,7 @@ from gpja.camera import Camera
 from gpja.cholesky import DEFAULT_BACKEND
 from gpja.mesh import TexturedMesh
 from gpja.register.hra import ExpressionTargets
+from gpja.register.openings import dark_openings
 
 #: gamma applied to linear colours before matching (flow works on perceptual contrast)
 MATCH_GAMMA = 1.0 / 2.2
@@ -57,12 +58,6 @@ VISIBLE_DEPTH_MM = 1.0
 MIN_FACING = 0.3
 #: residual re-weighting passes of the smooth solve
 REWEIGHT_PASSES = 2
-#: a reference pixel is as dark as an open mouth when its grey level is below this fraction of the median grey
-#: of the pixels the scan covers (``FlowSettings.socket_margin_px``; gamma-encoded: an open mouth's inside is 20-40,
-#: the skin 140-170, the lips 120-150 of 255 on the synthetic captures)
-SOCKET_DARK_FRACTION = 0.5
-#: ... and an opening is a dark region at least this wide (px): the dark contact line of closed lips is not one
-OPENING_MIN_PX = 5
 #: a view's reference shows the mouth open when the opening's pixels beside the render's socket are at least this
 #: fraction of the socket's (measured: 0.19-0.45 for the lip funnelers' references, 0 for every closed mouth's)
 OPENING_MIN_FRACTION = 0.1
@@ -104,7 +99,7 @@ class FlowSettings:
             pixel and the render lies on it (:func:`shade_by_scan`); the texture fusion's ``fusion_normal_blur_px``
             is the consistent value.
         socket_margin_px: beyond the stage as first written (0 = off): in a view whose reference shows the mouth
-            closed (no dark opening, ``SOCKET_DARK_FRACTION`` and ``OPENING_MIN_PX``, beside the render's socket:
+            closed (no dark opening, :func:`gpja.register.openings.dark_openings`, beside the render's socket:
             ``OPENING_MIN_FRACTION``), a vertex whose pixel in the render lies within this many pixels of the
             mouth's socket (the rendered mouth mask) does not match. DIS's patches there straddle a dark socket the
             reference does not show: from the lip funneler's start, the flow slid the middle of S01 ``1_neutral``'s
@@ -189,15 +184,6 @@ def within(region: np.ndarray, margin_px: float) -> np.ndarray:
     return distance < float(margin_px)
 
 
-def opened(region: np.ndarray, width_px: int) -> np.ndarray:
-    """(H, W) bool ``region`` without its parts narrower than ``width_px`` (a morphological opening by a disc of that
-    diameter, OpenCV's)."""
-    import cv2
-
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (int(width_px), int(width_px)))
-    return cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_OPEN, disc).astype(bool)
-
-
 def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """``image`` (H, W, C) float64 sampled at pixel positions ``xy`` (n, 2) (centres at integers, clamped).
 
@@ -264,10 +250,7 @@ def view_matches(camera: Camera, V: np.ndarray, normals: np.ndarray, use: np.nda
             & (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
             & (scan_coverage[qi[:, 1], qi[:, 0]] > 0.999))
     if socket is not None and socket_margin_px > 0 and socket.any():
-        # an opening in the reference: darker than half the grey of the skin the scan covers, and wide
-        face = scan_coverage > 0.999
-        skin = np.median(reference_grey[face]) if face.any() else np.median(reference_grey)
-        dark = opened(reference_grey < SOCKET_DARK_FRACTION * skin, OPENING_MIN_PX)
+        dark = dark_openings(reference_grey, scan_coverage, within_head=False)
         beside = within(socket, socket_margin_px)
         if (dark & beside).sum() < OPENING_MIN_FRACTION * socket.sum():  # the reference's mouth is closed
             good &= ~beside[pix[ok, 1], pix[ok, 0]]

@@ -63,6 +63,9 @@ class ExpressionTargets:
         sh: (9, 3) SH lighting of the capture (``gpja.lighting`` convention).
         color_scan_px: None = the colour constraint counts wherever the template renders (the paper); else only
             within this many pixels of the scan's coverage (:attr:`color_weight`; ``Schedule.color_scan_px``).
+        mask_where_open: False = the mouth mask leaves the socket's pixels out of the colour constraint wherever the
+            render shows them (the paper); True = only where the reference shows an opening there
+            (:attr:`opening`, :func:`color_weight_rows`; ``Schedule.mask_where_open``).
     """
 
     cameras: Sequence[Camera]
@@ -72,6 +75,7 @@ class ExpressionTargets:
     coverage: torch.Tensor
     sh: torch.Tensor
     color_scan_px: int | None = None
+    mask_where_open: bool = False
 
     @functools.cached_property
     def color_weight(self) -> torch.Tensor | None:
@@ -85,6 +89,20 @@ class ExpressionTargets:
         k = int(self.color_scan_px)
         covered = (self.coverage.clamp(0.0, 1.0) > COVERED).to(torch.float32).permute(0, 3, 1, 2)
         return F.max_pool2d(covered, 2 * k + 1, stride=1, padding=k).permute(0, 2, 3, 1).contiguous()
+
+    @functools.cached_property
+    def opening(self) -> torch.Tensor:
+        """(B, H, W, 1) float32, 1 where the reference shows the mouth open (a dark opening,
+        :func:`gpja.register.openings.dark_openings`), else 0. Made at this resolution."""
+        import numpy as np
+
+        from gpja.register.flow import to_match_u8
+        from gpja.register.openings import dark_openings
+
+        images = self.images.double().numpy()
+        coverage = self.coverage.double().numpy()[..., 0]
+        found = [dark_openings(to_match_u8(images[b], 0.0), coverage[b]) for b in range(len(images))]
+        return torch.from_numpy(np.stack(found)[..., None].astype(np.float32))
 
     def views(self, index: Sequence[int]) -> "ViewSubset":
         """The targets of the views ``index`` (B' view indices, in this order): a random subset per
@@ -128,7 +146,7 @@ class ExpressionTargets:
 
         cameras = [c.resized(width // factor, height // factor) for c in self.cameras]
         return ExpressionTargets(cameras, pool(self.images), pool(self.depth), pool(self.normal),
-                                 pool(self.coverage), self.sh, self.color_scan_px)
+                                 pool(self.coverage), self.sh, self.color_scan_px, self.mask_where_open)
 
 
 class ViewSubset:
@@ -146,6 +164,7 @@ class ViewSubset:
         self.parent, self.index = parent, index
         self.cameras = [parent.cameras[int(i)] for i in index]
         self.sh = parent.sh
+        self.mask_where_open = parent.mask_where_open
         self._dense: dict[str, torch.Tensor] = {}
         self._rows: tuple[torch.Tensor, torch.Tensor] | None = None  # (a render's pixels, their rows in the parent)
 
@@ -159,6 +178,7 @@ class ViewSubset:
     normal = property(lambda self: self._subset("normal"))
     coverage = property(lambda self: self._subset("coverage"))
     color_weight = property(lambda self: None if self.parent.color_weight is None else self._subset("color_weight"))
+    opening = property(lambda self: self._subset("opening"))
 
     def rows(self, name: str, out: RenderOutput) -> torch.Tensor:
         """Rows (R, C) of target ``name`` at ``out``'s pixels, read from the parent's tensor."""
@@ -196,6 +216,24 @@ def passes_for(constraint: str, switches: Switches) -> tuple[str, ...]:
     return (constraint,)
 
 
+def mouth_mask_weight(mask: torch.Tensor, coverage: torch.Tensor, opening: torch.Tensor | None) -> torch.Tensor:
+    """The colour constraint's per-pixel weight from the render's mouth-mask pass.
+
+    Args:
+        mask, coverage: (..., 1) the render's mask pass (0 on the mouth's socket and the background, 1 on the rest of
+            the head) and its coverage, at the same pixels.
+        opening: (..., 1) the reference's openings there (``ExpressionTargets.opening``), or None (the paper).
+    Returns:
+        ``mask`` (the paper: the socket never counts), or with ``opening`` ``mask + (coverage - mask)+ (1 - opening)``:
+        the socket counts where the reference shows no opening. There the socket's own dark texture is compared
+        with the lips or skin the reference shows, so socket material left over a closed mouth's lips costs
+        (docs/experiments.md, "The mouth mask only where the reference shows the mouth open").
+    """
+    if opening is None:
+        return mask
+    return mask + (coverage - mask).clamp_min(0.0) * (1.0 - opening)
+
+
 def pooled_color_l1(out: RenderOutput, targets: ExpressionTargets | ViewSubset, weight_pass: str, pool: int) -> torch.Tensor:
     """Mean L1 of the weighted colour after ``pool x pool`` box averaging of render and reference.
 
@@ -212,6 +250,8 @@ def pooled_color_l1(out: RenderOutput, targets: ExpressionTargets | ViewSubset, 
     import torch.nn.functional as F
 
     weight = out.dense(weight_pass)  # (B, H, W, 1)
+    if weight_pass == "mask" and targets.mask_where_open:
+        weight = mouth_mask_weight(weight, out.dense("coverage"), targets.opening.to(weight.dtype))
     if targets.color_weight is not None:
         weight = weight * targets.color_weight
     render = (out.dense("color") * weight).permute(0, 3, 1, 2)
@@ -238,6 +278,8 @@ def constraint_loss(constraint: str, out: RenderOutput, targets: ExpressionTarge
         if color_pool > 1:
             return pooled_color_l1(out, targets, weight_pass, color_pool)
         weight = out.values[weight_pass]
+        if weight_pass == "mask" and targets.mask_where_open:
+            weight = mouth_mask_weight(weight, out.values["coverage"], targets.rows("opening", out).to(weight.dtype))
         if targets.color_weight is not None:  # only near what the scan covers (Schedule.color_scan_px)
             weight = weight * targets.rows("color_weight", out)
         # image_l1's weighted sum, with the reference's rows gathered by the targets (no subset copied)

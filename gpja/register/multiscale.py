@@ -236,6 +236,11 @@ class Schedule:
             (``ExpressionTargets.color_weight``). The template is a model of what the scan covers; beyond it (the
             neck below the scan's cut, shoulders, clothes) the photographs show what the template's extension
             does not model, and matching its colours there crumpled the neck and turned its cap over.
+        mask_where_open: beyond the paper (False = the mouth mask leaves the socket out of the colour constraint
+            wherever the render shows it, the paper): the socket is left out only where the reference shows an
+            opening (``ExpressionTargets.mask_where_open``, :mod:`gpja.register.openings`). Over a closed mouth the
+            socket's dark texture is then compared with the lips the reference shows, so socket material left on the
+            lips' front costs; the paper's mask lets it stay there for nothing.
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -285,6 +290,7 @@ class Schedule:
     snap_smoothness: float = 1.0
     color_gain: bool = False
     color_scan_px: int | None = None
+    mask_where_open: bool = False
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -299,6 +305,8 @@ class Schedule:
             raise ValueError(f"lambdas must be >= 0, got {list(self.lambdas)}")
         if self.color_scan_px is not None and not (isinstance(self.color_scan_px, int) and self.color_scan_px >= 0):
             raise ValueError(f"color_scan_px must be null or a whole number of pixels >= 0, got {self.color_scan_px!r}")
+        if not isinstance(self.mask_where_open, (bool, np.bool_)):
+            raise ValueError(f"mask_where_open must be true or false, got {self.mask_where_open!r}")
         if self.color_pool is not None and (len(self.color_pool) != len(self.lambdas)
                                             or any(int(p) < 1 for p in self.color_pool)):
             raise ValueError(f"color_pool needs one entry >= 1 per level ({len(self.lambdas)}), "
@@ -520,6 +528,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
     log = RegistrationLog()
     if schedule.color_scan_px is not None:  # every colour comparison below: only near what the scan covers
         targets = replace(targets, color_scan_px=int(schedule.color_scan_px))
+    if schedule.mask_where_open:  # the socket left out of the colour only where the reference shows an opening
+        targets = replace(targets, mask_where_open=True)
     if schedule.color_gain and switches.color:
         targets = gain_stage(mesh, targets, texture, mask_texture, render, progress, log)
     # the orientation the untangling keeps (untangle_turned), carried through the refinements

@@ -287,3 +287,44 @@ def test_schedule_checks_the_colour_scan_pixels():
     for bad in (-1, 2.5):
         with pytest.raises(ValueError, match="color_scan_px"):
             Schedule(lambdas=(1.0,), iterations=(1,), color_scan_px=bad)
+
+
+def test_mouth_mask_weight_counts_the_socket_only_where_the_reference_shows_no_opening():
+    """Analytic, four pixels: skin (mask 1), socket over a closed mouth, socket over an opening, background. Without
+    openings the weight is the paper's mask, unchanged."""
+    from gpja.register.hra import mouth_mask_weight
+
+    mask = torch.tensor([[1.0], [0.0], [0.0], [0.0]])
+    coverage = torch.tensor([[1.0], [1.0], [1.0], [0.0]])
+    opening = torch.tensor([[1.0], [0.0], [1.0], [0.0]])
+    np.testing.assert_array_equal(mouth_mask_weight(mask, coverage, opening).numpy().ravel(), [1.0, 1.0, 0.0, 0.0])
+    assert mouth_mask_weight(mask, coverage, None) is mask
+
+
+def test_mask_where_open_charges_socket_texture_over_a_closed_mouth():
+    """The whole texture is socket and every reference pixel differs from it. The paper's mask counts nothing; with
+    ``mask_where_open`` the references, which show no opening, count everywhere; where they show one, nothing again;
+    the subset of views reads the same openings."""
+    from dataclasses import replace
+
+    V, topo, uv, tex, targets = setup()
+    targets.images = torch.full_like(targets.images, 0.8)
+    all_masked = torch.zeros(8, 8, 1)
+    assert float(loss_of("color", V, topo, uv, tex, targets, Switches(), all_masked)) == 0.0
+    where_open = replace(targets, mask_where_open=True)
+    assert not where_open.opening.any()
+    charged = float(loss_of("color", V, topo, uv, tex, where_open, Switches(), all_masked))
+    assert charged > 0.1
+    assert float(loss_of("color", V, topo, uv, tex, where_open.views([1, 0]), Switches(), all_masked)) == pytest.approx(
+        charged, rel=1e-6)
+    where_open.__dict__["opening"] = torch.ones_like(where_open.opening)  # every pixel an opening
+    assert float(loss_of("color", V, topo, uv, tex, where_open, Switches(), all_masked)) == 0.0
+    assert replace(where_open, images=where_open.images).downsampled(2).mask_where_open
+
+
+def test_schedule_refuses_a_mask_where_open_that_is_not_a_boolean():
+    from gpja.register.multiscale import Schedule
+
+    assert Schedule().mask_where_open is False
+    with pytest.raises(ValueError, match="mask_where_open"):
+        Schedule(mask_where_open="yes")
