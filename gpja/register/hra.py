@@ -65,7 +65,7 @@ class ExpressionTargets:
             within this many pixels of the scan's coverage (:attr:`color_weight`; ``Schedule.color_scan_px``).
         mask_where_open: False = the mouth mask leaves the socket's pixels out of the colour constraint wherever the
             render shows them (the paper); True = only where the reference shows an opening there
-            (:attr:`opening`, :func:`color_weight_rows`; ``Schedule.mask_where_open``).
+            (:attr:`opening`, :func:`mouth_mask_weight`; ``Schedule.mask_where_open``).
     """
 
     cameras: Sequence[Camera]
