@@ -299,6 +299,7 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
     merged = {**default_gpja, **gpja_cfg}
     expected = (["start"] + ["jaw"] * (merged.get("jaw_search_deg") is not None)
                 + ["lids"] * (merged.get("lid_search_deg") is not None) + ["flow"] * (flow_levels > 0)
+                + ["spread"] * bool(flow_levels > 0 and merged.get("lip_spread"))
                 + ["warmup"] * bool(gpja_cfg.get("warmup_iterations")))
     for k in range(len(gpja_cfg["lambdas"])):
         expected += [f"flow{k + 1}"] * (0 < k < flow_levels) + [f"level{k + 1}"]

@@ -241,6 +241,10 @@ class Schedule:
             opening (``ExpressionTargets.mask_where_open``, :mod:`gpja.register.openings`). Over a closed mouth the
             socket's dark texture is then compared with the lips the reference shows, so socket material left on the
             lips' front costs; the paper's mask lets it stay there for nothing.
+        lip_spread: beyond the paper (False = off): after the first flow stage, the lips' material is spread along x
+            between the mouth's corners as the template spreads it (:mod:`gpja.register.spread`): a pursed parent
+            hands down lips pressed towards the middle, and their one colour shows neither the flow nor the descent
+            where their material lies. Needs the flow stage (it places the corners).
     """
 
     lambdas: tuple[float, ...] = (200.0, 120.0, 80.0, 50.0)
@@ -291,6 +295,7 @@ class Schedule:
     color_gain: bool = False
     color_scan_px: int | None = None
     mask_where_open: bool = False
+    lip_spread: bool = False
 
     #: ``Schedule.from_config(section, source)``: from a config section (``registration.gpja``), see gpja.settings.
     from_config = classmethod(from_section)
@@ -305,8 +310,9 @@ class Schedule:
             raise ValueError(f"lambdas must be >= 0, got {list(self.lambdas)}")
         if self.color_scan_px is not None and not (isinstance(self.color_scan_px, int) and self.color_scan_px >= 0):
             raise ValueError(f"color_scan_px must be null or a whole number of pixels >= 0, got {self.color_scan_px!r}")
-        if not isinstance(self.mask_where_open, (bool, np.bool_)):
-            raise ValueError(f"mask_where_open must be true or false, got {self.mask_where_open!r}")
+        for name in ("mask_where_open", "lip_spread"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.color_pool is not None and (len(self.color_pool) != len(self.lambdas)
                                             or any(int(p) < 1 for p in self.color_pool)):
             raise ValueError(f"color_pool needs one entry >= 1 per level ({len(self.lambdas)}), "
@@ -532,6 +538,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         targets = replace(targets, mask_where_open=True)
     if schedule.color_gain and switches.color:
         targets = gain_stage(mesh, targets, texture, mask_texture, render, progress, log)
+    # the template's positions the lips' spread reads (lip_spread): the workflow's orientation, else the start's
+    spread_reference = np.array(mesh.V if orientation is None else orientation, dtype=np.float64)
     # the orientation the untangling keeps (untangle_turned), carried through the refinements
     reference = None
     if schedule.untangle_turned and schedule.untangle_iterations > 0:
@@ -553,6 +561,8 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         before_flow = mesh
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow",
                           last=flow_levels == 1)
+        if schedule.lip_spread:  # before the hold: what the spread moves is what the hold leaves free
+            mesh = spread_stage(mesh, spread_reference, mask_texture, progress, log, on_stage)
         if schedule.holds and not warmup:  # the first flow stage tells what moves
             hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage", mask_texture, release)
             if flow_levels == 1:
@@ -641,6 +651,20 @@ def snap_stage(mesh: TexturedMesh, scan: tuple[np.ndarray, np.ndarray], schedule
              f"{entry['moved_median_mm']:.3f}, at most {entry['moved_max_mm']:.2f} mm, {entry['seconds']:.1f} s")
     if on_stage is not None:
         on_stage("snap", mesh)
+    return mesh
+
+
+def spread_stage(mesh: TexturedMesh, template_V: np.ndarray, mask_texture: torch.Tensor,
+                 progress: Callable[[str], None], log: RegistrationLog,
+                 on_stage: Callable[[str, TexturedMesh], None] | None) -> TexturedMesh:
+    """The lips' material spread between the mouth's corners (``gpja.register.spread``), logged and saved as stage
+    ``spread``; returns the mesh (same topology and texture coordinates)."""
+    from gpja.register.spread import spread_lips
+
+    mesh, entry = spread_lips(mesh, template_V, mask_texture, progress)
+    log.levels.append(entry)
+    if on_stage is not None:
+        on_stage("spread", mesh)
     return mesh
 
 

@@ -93,7 +93,7 @@ class TemplateSettings:
     schedule: Schedule = field(default_factory=lambda: Schedule(lambdas=(200.0, 120.0, 80.0), iterations=(150, 150, 150)),
                                metadata={HIDDEN: ("color_pool", "warmup_iterations", "warmup_geometry", "optimizer_state",
                                                    "hold_tangential", "hold_moved_mm", "hold_gap_mm", "hold_mouth_mm", "hold_mouth_at_flow_mm", "hold_moved_at_flow",
-                                                   "mouth_stiffness", "jaw_search_deg", "jaw_lips_mm", "jaw_shift_mm", "jaw_window_mm", "jaw_reach_mm", "lid_search_deg", "lip_seal", "color_gain", "color_scan_px", "mask_where_open",
+                                                   "mouth_stiffness", "jaw_search_deg", "jaw_lips_mm", "jaw_shift_mm", "jaw_window_mm", "jaw_reach_mm", "lid_search_deg", "lip_seal", "color_gain", "color_scan_px", "mask_where_open", "lip_spread",
                                                    "spring_rate",
                                                    "flow_rounds",
                                                    "flow_levels", "flow_final_rounds", "flow_smoothness", "flow_still_mm", "flow_socket_margin_px", "flow_chroma", "flow_finest_scale", "flow_scan_shading_px",

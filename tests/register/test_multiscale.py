@@ -1,3 +1,4 @@
+import dataclasses
 import numpy as np
 import pytest
 import torch
@@ -244,6 +245,11 @@ def test_flow_stages_run_before_the_first_levels_and_are_logged_and_saved():
     assert log.levels[0]["vertices"] == len(template.V) and len(log.levels[0]["rounds"]) == 1
     _, log = optimise(template, targets, Switches(color=False), schedule, **kwargs)
     assert [lv["stage"] for lv in log.levels] == ["level"] * 3
+    # lip_spread: the lips' spread right after the first flow stage (the sphere's mask marks no mouth: nothing moves)
+    saved = []
+    spread = dataclasses.replace(schedule, lip_spread=True)
+    _, log = optimise(template, targets, Switches(), spread, on_stage=lambda name, mesh: saved.append(name), **kwargs)
+    assert saved == ["flow", "spread", "level1", "flow2", "level2", "level3"] and log.levels[1]["moved"] == 0
 
 
 def test_a_final_flow_stage_runs_after_the_last_level_and_moves_the_slid_texture_back():
