@@ -538,14 +538,16 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         targets = replace(targets, mask_where_open=True)
     if schedule.color_gain and switches.color:
         targets = gain_stage(mesh, targets, texture, mask_texture, render, progress, log)
-    # the template's positions the lips' spread reads (lip_spread): the workflow's orientation, else the start's
-    spread_reference = np.array(mesh.V if orientation is None else orientation, dtype=np.float64)
-    # the orientation the untangling keeps (untangle_turned), carried through the refinements
-    reference = None
-    if schedule.untangle_turned and schedule.untangle_iterations > 0:
-        reference = np.array(mesh.V if orientation is None else orientation, dtype=np.float64)
-        if reference.shape != mesh.V.shape:
-            raise ValueError(f"orientation has shape {reference.shape}, the mesh's vertices {mesh.V.shape}")
+    # the template's positions on the start's topology (the workflow's orientation, else the start's own): the lips'
+    # spread reads them (lip_spread), the untangling keeps their faces' orientation (untangle_turned)
+    untangle_turned = schedule.untangle_turned and schedule.untangle_iterations > 0
+    template_V = None
+    if schedule.lip_spread or untangle_turned:
+        template_V = np.array(mesh.V if orientation is None else orientation, dtype=np.float64)
+        if template_V.shape != mesh.V.shape:
+            raise ValueError(f"orientation has shape {template_V.shape}, the mesh's vertices {mesh.V.shape}")
+    # the orientation the untangling keeps, carried through the refinements
+    reference = template_V if untangle_turned else None
     common = dict(targets=targets, texture=texture, mask_texture=mask_texture, render=render,
                   cull_backfaces=cull_backfaces, progress=progress, progress_every=progress_every)
     hold = None
@@ -562,7 +564,7 @@ def optimise(mesh: TexturedMesh, targets: ExpressionTargets, switches: Switches,
         mesh = flow_stage(mesh, targets, schedule, texture, mask_texture, render, progress, log, on_stage, "flow",
                           last=flow_levels == 1)
         if schedule.lip_spread:  # before the hold: what the spread moves is what the hold leaves free
-            mesh = spread_stage(mesh, spread_reference, mask_texture, progress, log, on_stage)
+            mesh = spread_stage(mesh, template_V, mask_texture, progress, log, on_stage)
         if schedule.holds and not warmup:  # the first flow stage tells what moves
             hold = start_hold(before_flow, mesh, schedule, targets, progress, "the flow stage", mask_texture, release)
             if flow_levels == 1:

@@ -119,19 +119,19 @@ def spread_lips(mesh: TexturedMesh, template_V: np.ndarray, mask_texture: torch.
         return mesh, entry
     shift, weight = spread_along_x(mesh.V, template_V, rim, left, right)
     band = np.flatnonzero(weight > 0)
-    V = np.array(mesh.V, dtype=np.float64)
-    median_shift = float(np.median(np.abs(shift[band]))) if len(band) else 0.0
+    size = np.abs(shift[band])
+    median_shift = float(np.median(size)) if len(band) else 0.0
     if median_shift > MAX_MEDIAN_SHIFT_MM:
         entry.update(seconds=round(time.perf_counter() - start, 3), skipped_median_shift_mm=round(median_shift, 3))
         progress(f"spread: left out (it would move the lips' band {median_shift:.1f} mm by the median, over "
                  f"{MAX_MEDIAN_SHIFT_MM:g}: the lower face moved as a whole, a jaw sideways)")
         return mesh, entry
+    V = np.array(mesh.V, dtype=np.float64)
     if len(band):
         moved = V[band].copy()
         moved[:, 0] += shift[band]
         V[band] = prepare_surface(mesh.V, mesh.F, find_boundary=False).closest(moved).point
-        size = np.abs(shift[band])
-        entry.update(moved=int(len(band)), median_shift_mm=round(float(np.median(size)), 3),
+        entry.update(moved=int(len(band)), median_shift_mm=round(median_shift, 3),
                      max_shift_mm=round(float(size.max()), 3))
     entry["seconds"] = round(time.perf_counter() - start, 3)
     progress(f"spread: {entry['moved']} vertices of the lips spread between the mouth's corners as the template "
