@@ -116,6 +116,8 @@ METHODS: dict[str, Method] = {m.name: m for m in [
     Method("gpja-no_gain", "GPJA w/o colour gain", "ablation", overrides=(("color_gain", False),)),
     # GPJA with the colour compared wherever the template renders, beyond the scan too: what the limit buys
     Method("gpja-no_scan_color", "GPJA w/ colour beyond the scan", "ablation", overrides=(("color_scan_px", None),)),
+    # GPJA with the lips' material left where the first flow stage put it, not spread between the mouth's corners
+    Method("gpja-no_spread", "GPJA w/o lip spread", "ablation", overrides=(("lip_spread", False),)),
     # the paper's method as published (no warm-up, one Adam, from the template): what each departure buys
     Method("gpja-paper", "GPJA (paper schedule)", "ablation", schedule="paper"),
     Method("nicp", "NICP", "baseline", entry="gpja.baselines.nicp:run_baseline"),

@@ -25,7 +25,7 @@ def test_registry_names_labels_and_switches():
     assert M.names("gpja") == ["gpja"]
     assert M.names("ablation") == ["gpja-no_normal", "gpja-no_depth", "gpja-no_color", "gpja-no_mask", "gpja-no_flow",
                                    "gpja-no_hold", "gpja-no_untangle", "gpja-no_snap", "gpja-no_gain", "gpja-no_scan_color",
-                                   "gpja-paper"]
+                                   "gpja-no_spread", "gpja-paper"]
     assert M.names("baseline") == ["nicp"]
     assert [M.label(m) for m in ("gpja", "nicp", "gpja-no_mask", "nphm")] == ["GPJA", "NICP", "GPJA w/o mask", "nphm"]
     assert M.method("gpja-no_depth").without == ("depth",) and M.method("gpja").without == ()
