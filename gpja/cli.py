@@ -237,16 +237,19 @@ def cmd_stages(args: argparse.Namespace) -> None:
 def cmd_oracle(args: argparse.Namespace) -> None:
     from gpja.data.source import DataSource
     from gpja.io import write_json
+    from gpja.metrics.evaluate import MetricSettings
     from gpja.metrics.oracle import evaluate_oracle
 
+    settings = MetricSettings.from_config(_settings(args.settings), "--settings")
     start = time.perf_counter()
     result = evaluate_oracle(DataSource.from_args(args), args.ground_truth_root, args.subject, args.expression,
                              targets_path=args.targets, out_dir=args.output_dir, supersample=args.supersample,
-                             render=_renderer(args))
+                             render=_renderer(args), settings=settings)
     write_json(args.output, result)
-    p = result["photometric"]
+    p, g = result["photometric"], result["geometry"]
     print(f"oracle: {args.subject}/{args.expression}: PSNR {p['psnr']:.2f} dB, SSIM {p['ssim']:.4f}, "
-          f"LPIPS {p['lpips']:.4f} ({time.perf_counter() - start:.1f} s)", flush=True)
+          f"LPIPS {p['lpips']:.4f}; the true surface against the scan: C.D. {g['chamfer_l1_mm']:.4f} mm, "
+          f"N.C. {g['normal_consistency']:.4f} ({time.perf_counter() - start:.1f} s)", flush=True)
 
 
 def cmd_texture_quality(args: argparse.Namespace) -> None:
@@ -562,8 +565,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--targets", default=None, help="the expression's scan targets .npz (the head mask)")
     p.add_argument("--supersample", type=int, default=None,
                    help="samples per pixel along each axis (default: the generator's, from subject.json)")
+    p.add_argument("--settings", default="{}", help="JSON: the config's metrics section (the geometric scores' "
+                                                   "protocol)")
     _add_backend_arg(p)
-    p.add_argument("--output", required=True, help="metrics JSON (photometric part only)")
+    p.add_argument("--output", required=True, help="metrics JSON (photometric and geometric parts)")
     p.add_argument("--output-dir", required=True, help="per-view renders and error images")
     p.set_defaults(func=cmd_oracle)
 

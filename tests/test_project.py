@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from tests.configs import CONFIGS, OVERLAYS, load_config
+from tests.tolerances import SCAN_AGAINST_ITSELF_MM
 
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
@@ -205,6 +206,8 @@ def test_reference_steps_and_their_outputs_are_in_the_ci_dag(tmp_path):
     n_subjects, n_expressions = len(cfg["subjects"]), len(cfg["expressions"])
     assert int(counts["texture_quality"]) == int(counts["plot_correspondence_errors"]) == n_subjects
     assert int(counts["oracle_metrics"]) == n_subjects * n_expressions
+    oracle = re.search(r"gpja --threads 1 oracle .*", out.stdout).group(0)  # scored with the methods' protocol
+    assert json.loads(re.search(r"--settings '([^']*)'", oracle).group(1)) == load_config("ci.yaml")["metrics"]
     tables = re.search(r"gpja --threads 1 tables .*", out.stdout).group(0)
     assert ("--tables geometry photometric ablation correspondence correspondence_regions position_regions texture turns"
             " timing") in tables
@@ -272,8 +275,11 @@ def test_ci_workflow_runs_end_to_end(tmp_path):
         # by facial region, and the oracle above every method (nothing can beat the ground truth)
         assert set(metrics["correspondence"]["regions"]) == {"mouth", "eyes", "nose", "brows", "face", "outer"}
         oracle = json.loads((work / f"results/{cfg['dataset']}/S01/oracle/metrics/{expression}.json").read_text())
-        assert oracle["geometry"] is None and oracle["photometric"]["psnr"] > max(
-            metrics["photometric"]["psnr"], nicp["photometric"]["psnr"])
+        assert oracle["photometric"]["psnr"] > max(metrics["photometric"]["psnr"], nicp["photometric"]["psnr"])
+        # its true surface against a noise-free scan (config/ci.yaml): the scan itself
+        assert cfg["synthetic"]["scan_noise_mm"] == 0.0
+        assert oracle["geometry"]["chamfer_l1_mm"] < SCAN_AGAINST_ITSELF_MM < metrics["geometry"]["chamfer_l1_mm"]
+        assert oracle["geometry"]["normal_consistency"] > 0.999
     # the closed-mouth expression is registered through the tree (scans alone), gpja-paper from the template
     closed = cfg["registration"]["ablations"]["expressions"][0]
     order = json.loads((work / f"results/{cfg['dataset']}/S01/registration_order.json").read_text())

@@ -39,6 +39,11 @@ ICOSPHERE5_SAGITTA_MM = 0.03
 NORMAL_CONSISTENCY_FACETED = 1e-3
 #: An area fraction estimated from 20K uniform samples (binomial sigma <= 0.0035: ~3 sigma).
 AREA_FRACTION_SAMPLED = 0.01
+#: A scan scored against its own vertices at their true positions with no noise (mm): the PLY's float32 positions
+SCAN_AGAINST_ITSELF_MM = 1e-3
+#: The mean distance of Gaussian-noisy scan vertices to the true surface against sigma * sqrt(2 / pi) (relative):
+#: the surface curves within a noise's reach, and a tiny subject has a few thousand vertices
+NOISE_MEAN_DISTANCE_RELATIVE = 0.15
 #: Pinned regression scores (deterministic float32 BVH queries; leaves room for
 #: another CPU's float rounding), relative.
 REGRESSION_RELATIVE = 1e-5

@@ -33,9 +33,16 @@ under the paper's uniform white light 20.50 / 0.808 / 0.151. What is left is at 
 (pixels the scan half covers, blended with the black background as every method's render is), the
 lids' and lips' creases, and the reference images' resampling.
 
-Output: a metrics JSON with the photometric family only (``geometry`` and ``correspondence`` are
-null), at ``results/{dataset}/{subject}/oracle/metrics/{expression}.json``; the per-view renders and
-error images beside it, as for every method.
+Geometry: the same true surface scored against the expression's scan with the geometric protocol of
+every method (:func:`gpja.metrics.geometry.evaluate_geometry`, the run's ``metrics`` settings). On a
+noise-free capture it is the scan itself (C.D. 0, N.C. 1); with ``synthetic.scan_noise_mm`` it measures what
+the noise alone costs, which no registration can win back: on a capture with 0.15 mm of noise (seed 47,
+S01 ``1_neutral``) the true surface scores C.D. 0.097 mm and N.C. 0.937, against the N.C. bar of 0.99 that
+a smooth mesh can only meet on a smooth scan (docs/experiments.md, "The ground truth's own geometric score").
+
+Output: a metrics JSON with the photometric and geometric families (``correspondence`` is null), at
+``results/{dataset}/{subject}/oracle/metrics/{expression}.json``; the per-view renders and error images
+beside it, as for every method.
 """
 from __future__ import annotations
 
@@ -51,6 +58,7 @@ from gpja.io import read_json, read_npz
 if TYPE_CHECKING:  # workflow/rules/reference.smk imports this module's names while the Snakefile parses
     from gpja.camera import Camera
     from gpja.data.source import DataSource
+    from gpja.metrics.evaluate import MetricSettings
 
 log = logging.getLogger(__name__)
 
@@ -201,9 +209,31 @@ def score_renders(renders: np.ndarray, images: np.ndarray, coverage: np.ndarray,
     return photometric.score_renders(renders, images, masks, names, out_dir, source)
 
 
+def score_true_geometry(V_true: np.ndarray, scan_V: np.ndarray, scan_F: np.ndarray, settings: "MetricSettings",
+                        scan_source: str | Path = "scan") -> dict:
+    """The true surface's geometric scores against its (noisy) scan, as a method's (module docstring).
+
+    Args:
+        V_true: (n, 3) float64 the scan's vertices at their true positions, mm (:func:`true_surface_vertices`).
+        scan_V: (n, 3) float64 the scan's vertices as captured, mm. scan_F: (m, 3) int64 the scan's faces,
+            which the true surface shares.
+        settings: the run's scoring protocol (:class:`gpja.metrics.evaluate.MetricSettings`).
+    Returns:
+        ``GeometryMetrics.to_json()`` plus ``mesh`` (what was scored) and ``scan``.
+    """
+    from gpja.metrics.geometry import evaluate_geometry
+
+    s = settings
+    scores = evaluate_geometry(V_true, scan_F, scan_V, scan_F, samples=s.samples, seed=s.seed,
+                               thresholds=s.thresholds_mm, coverage=s.coverage, max_distance_mm=s.max_distance_mm,
+                               mesh_source=f"{scan_source} at its true positions", scan_source=scan_source)
+    return {"mesh": f"{scan_source} at its true positions", "scan": str(scan_source), **scores.to_json()}
+
+
 def evaluate_oracle(source: "DataSource", ground_truth_root: str | Path, subject: str, expression: str,
                     targets_path: str | Path | None = None, out_dir: str | Path | None = None,
-                    supersample: int | None = None, render: Callable | None = None) -> dict:
+                    supersample: int | None = None, render: Callable | None = None,
+                    settings: "MetricSettings | None" = None) -> dict:
     """The oracle's metrics JSON of one expression (module docstring).
 
     Args:
@@ -213,13 +243,15 @@ def evaluate_oracle(source: "DataSource", ground_truth_root: str | Path, subject
         out_dir: the folder of per-view renders and error images (None: not written).
         supersample: samples per pixel along each axis; None = the generator's.
         render: a backend's ``render_views``; None = the CPU renderer.
+        settings: the scoring protocol of the geometric scores (None: the defaults of ``MetricSettings``).
     Returns:
-        JSON-able ``{"subject", "expression", "method": "oracle", "geometry": None, "photometric": {...},
+        JSON-able ``{"subject", "expression", "method": "oracle", "geometry": {...}, "photometric": {...},
         "correspondence": None, "oracle": {what was rendered}}``.
     Raises:
         InputError: real data (an ``Rt_scale_dict``), missing or corrupt files, views of different sizes.
     """
     from gpja.data.synthetic.albedo import evaluate_albedo
+    from gpja.metrics.evaluate import MetricSettings
     from gpja.render import render_scan_targets
 
     if source.rt_scale is not None:
@@ -236,8 +268,9 @@ def evaluate_oracle(source: "DataSource", ground_truth_root: str | Path, subject
     targets = render_scan_targets(data.scan.V, data.scan.F, data.cameras, cache_path=targets_path, render=render)
     scores = score_renders(renders, np.stack(data.images), targets["coverage"].numpy(),
                            [v.name for v in data.views], out_dir, source=data.scan.path)
+    geometry = score_true_geometry(V_true, data.scan.V, data.scan.F, settings or MetricSettings(), data.scan.path)
     return {"subject": str(subject), "expression": expression, "method": ORACLE, "mesh": str(data.scan.path),
-            "geometry": None, "photometric": scores, "correspondence": None,
+            "geometry": geometry, "photometric": scores, "correspondence": None,
             "oracle": {"surface": f"{data.scan.path} vertices at their true positions (the generator's expression "
                        "map of scan_rest_coords)", "albedo": "generator albedo per pixel at the interpolated "
                        "scan_rest_coords, times skin_gain", "lighting": "ground-truth SH", "supersample": S,

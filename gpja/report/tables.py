@@ -11,12 +11,14 @@ Tables (file stem: content):
 - ``geometry``: the paper's Table 1: per subject and method the means over the
   expressions of C.D. (L1 Chamfer, mm), N.C. and the F-scores, plus an
   ``Average`` (mean of the subject means) per method. Ablation variants are left
-  to ``ablation``.
+  to ``ablation``. References with geometric scores (the oracle: the true surface
+  against its scan, what the scan's noise costs) follow as unbolded rows (CSV:
+  source ``reference``).
 - ``photometric``: Table 2: per subject and the average, PSNR (dB), SSIM and
   LPIPS per method; a method without texture coordinates shows "–". References
   (``gpja.methods`` kind ``reference``: the oracle, the ground truth rendered by our
   renderer) follow the methods as their own column group (CSV: rows with source
-  ``reference``); they are in no other table.
+  ``reference``); of the other tables only ``geometry`` shows them.
 - ``ablation``: Table 3: GPJA and each ablation variant present, mean ± sample
   standard deviation (n - 1) over every (subject, expression) pair of the run
   (the mean alone for one pair; the mean is what is bolded): the paper's
@@ -135,11 +137,13 @@ def ablation_methods(methods) -> list[str]:
 # Table 1: geometry
 
 
-def geometry_block(columns, methods, stats, published, names, title) -> Block:
-    """Rows: methods (then published rows); column groups: subjects and the average; columns: ``names``."""
+def geometry_block(columns, methods, stats, published, names, title, refs=()) -> Block:
+    """Rows: methods, then the references ``refs`` (the oracle; their statistics in ``stats`` too), then published
+    rows; column groups: subjects and the average; columns: ``names``. Only the methods' rows are bolded."""
     rows = [[method_label(m)] + [metric_cell(stats[(g, m)][n], n) for g in columns for n in names] for m in methods]
-    reference = [[paper_label(label)] + [metric_cell(per[g].get(n), n) for g in columns for n in names]
-                 for label, per in published.items()]
+    reference = [[method_label(m)] + [metric_cell(stats[(g, m)][n], n) for g in columns for n in names] for m in refs]
+    reference += [[paper_label(label)] + [metric_cell(per[g].get(n), n) for g in columns for n in names]
+                  for label, per in published.items()]
     block = Block(headers=["Method"] + [header(n) for _ in columns for n in names], rows=rows + reference,
                   groups=[(subject_label(g), len(names)) for g in columns],
                   rules={len(rows)} if reference else set(),
@@ -149,23 +153,36 @@ def geometry_block(columns, methods, stats, published, names, title) -> Block:
     return block
 
 
-def geometry_table(run: Run, published: str | None = None) -> Table:
-    """Table 1: C.D. (mm), N.C., F-scores per subject and method (means over expressions), and their average."""
+def geometry_table(run: Run, published: str | None = None, references: Run | None = None) -> Table:
+    """Table 1: C.D. (mm), N.C., F-scores per subject and method (means over expressions), and their average;
+    then the references of ``references`` that have geometric scores (the oracle: the true surface against the scan),
+    then the paper's numbers."""
     methods = comparison_methods(run.methods)
     fscores = fscore_names(run)
     names = ["chamfer_l1_mm", "normal_consistency", *fscores]
     stats = subject_stats(run, methods, names)
+    refs = [m for m in (references.methods if references is not None else [])
+            if count_values(references, references.subjects, m, names[0])]
+    if refs:
+        stats.update(subject_stats(references, refs, names))
     columns = run.subjects + [AVERAGE]
     paper = published_stats(PUBLISHED_GEOMETRY, PAPER_GEOMETRY_KEYS, run.subjects) if published else {}
-    blocks = [geometry_block(columns, methods, stats, paper, names[:2], "C.D. and N.C."),
-              geometry_block(columns, methods, stats, paper, fscores, "F-scores")]
+    blocks = [geometry_block(columns, methods, stats, paper, names[:2], "C.D. and N.C.", refs),
+              geometry_block(columns, methods, stats, paper, fscores, "F-scores", refs)]
     csv_header = ["subject", "method", "source", "expressions", *names]
     csv_rows = [[g, m, "reproduced", count_values(run, run.subjects if g == AVERAGE else [g], m, names[0]),
                  *[stats[(g, m)][n] for n in names]] for m in methods for g in columns]
+    csv_rows += [[g, m, "reference", count_values(references, references.subjects if g == AVERAGE else [g], m,
+                                                  names[0]), *[stats[(g, m)][n] for n in names]]
+                 for m in refs for g in columns]
     csv_rows += [[g, label, "paper", "", *[per[g].get(n) for n in names]]
                  for label, per in paper.items() for g in columns]
     notes = [(f"Means over {plural(len(run.expressions), 'expression')} per subject; {AVERAGE}: the mean of the "
               "subject means. C.D.: L1 Chamfer distance; N.C.: normal consistency; F@t: F-score at t mm.")]
+    if refs:
+        notes.append(f"{', '.join(method_label(m) for m in refs)}: the expression's true (noise-free) surface scored "
+                     "against its scan like every method (gpja/metrics/oracle.py): what the scan's noise alone costs, "
+                     "C.D. 0 and N.C. 1 on a noise-free scan; not bolded.")
     if paper:
         notes.append("(paper): Table 1 of the paper (FaceScape); its NICP row is FaceScape's TU meshes; "
                      f"its {AVERAGE} is the mean over the subjects of this run that the paper has.")
@@ -460,7 +477,7 @@ def build_tables(results: str | Path, benchmarks: str | Path, subjects, methods,
     if "ablation" in (names or []) and ablation_run is None:
         raise InputError("--tables", "the ablation table needs ablation variants (gpja-no_*) in --methods")
     extra = [ablation_run] if ablation_run is not None and ablation_run is not run else []
-    builders = {"geometry": lambda: geometry_table(run, published),
+    builders = {"geometry": lambda: geometry_table(run, published, reference_run),
                 "photometric": lambda: photometric_table(run, published, reference_run),
                 "ablation": lambda: ablation_table(ablation_run, published),
                 "correspondence": lambda: correspondence_table(run),

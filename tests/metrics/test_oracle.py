@@ -12,8 +12,9 @@ from gpja.cli import main
 from gpja.data.source import DataSource
 from gpja.errors import InputError
 from gpja.lighting import uniform_sh
-from gpja.metrics.oracle import evaluate_oracle, render_ground_truth, score_renders
-from tests.tolerances import LPIPS_FLOAT32
+from gpja.metrics.evaluate import MetricSettings
+from gpja.metrics.oracle import evaluate_oracle, render_ground_truth, score_renders, score_true_geometry
+from tests.tolerances import LPIPS_FLOAT32, NOISE_MEAN_DISTANCE_RELATIVE, SCAN_AGAINST_ITSELF_MM
 
 SUBJECT, EXPRESSION = "S01", "3_mouth_stretch"
 
@@ -96,7 +97,10 @@ def test_the_oracle_beats_a_misregistered_or_mislit_ground_truth(tiny_subject, t
     out = evaluate_oracle(source, tiny_subject / "gt", SUBJECT, EXPRESSION, targets_path=tmp_path / "targets.npz",
                           out_dir=tmp_path / "details")
     oracle = out["photometric"]
-    assert out["method"] == "oracle" and out["geometry"] is None and out["oracle"]["supersample"] == 2
+    assert out["method"] == "oracle" and out["oracle"]["supersample"] == 2
+    geometry = out["geometry"]  # a noise-free capture: the true surface is the scan itself
+    assert geometry["chamfer_l1_mm"] < SCAN_AGAINST_ITSELF_MM and geometry["normal_consistency"] > 0.999
+    assert geometry["fscore"]["0.5"] == 1.0
     assert (tmp_path / "details" / "render" / "0.png").is_file() and (tmp_path / "details" / "l1" / "1.png").is_file()
     json.dumps(out)
     # at 64 px the scan's rims and the lids' creases weigh (measured 26.0 dB; 32.3 dB on the CI data, 128 px)
@@ -148,3 +152,13 @@ def test_the_true_surface_is_the_noise_free_scan(tiny_subject, tmp_path):
     V_true, V_scan = true_and_scan(noisy)
     offset = np.linalg.norm(V_true - V_scan, axis=1)
     assert 0.25 < float(np.median(offset)) < 0.6  # |N(0, 0.5 mm)| has median 0.34 mm: the noise is undone
+
+    # scored like a method, the true surface pays for the noise: each scan vertex lies |N(0, sigma)| off it
+    scan = DataSource(images_root=noisy / "images", scans_root=noisy / "scans").load(SUBJECT, EXPRESSION).scan
+    geometry = score_true_geometry(V_true, scan.V, scan.F, MetricSettings(samples=20000), scan.path)
+    expected = 0.5 * math.sqrt(2.0 / math.pi)
+    assert abs(geometry["scan_to_mesh_mm"] - expected) < NOISE_MEAN_DISTANCE_RELATIVE * expected
+    assert geometry["mesh_to_scan_mm"] < geometry["scan_to_mesh_mm"]  # the noisy surface runs through the true one
+    clean = score_true_geometry(V_true, V_true, scan.F, MetricSettings(samples=20000), scan.path)
+    assert clean["chamfer_l1_mm"] < SCAN_AGAINST_ITSELF_MM
+    assert geometry["normal_consistency"] < clean["normal_consistency"] - 0.05

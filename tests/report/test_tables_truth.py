@@ -1,4 +1,4 @@
-"""Tables against the synthetic ground truth: correspondence by region, texture quality, the oracle in Table 2."""
+"""Tables against the synthetic ground truth: correspondence by region, texture quality, the oracle in Tables 1-2."""
 from __future__ import annotations
 
 import json
@@ -102,11 +102,15 @@ def test_each_method_s_floor_is_a_row_under_it_in_the_correspondence_tables(run_
     assert "floor" not in md
 
 
-def write_oracle(results, subject, expression, psnr: float):
-    """The oracle's metrics JSON (`gpja oracle`): photometric only."""
+def write_oracle(results, subject, expression, psnr: float, cd: float | None = None, nc: float = 1.0):
+    """The oracle's metrics JSON (`gpja oracle`): photometric, and with ``cd`` the true surface's geometric scores
+    (without: as the oracle wrote it before it scored geometry)."""
     path = Layout(results).metrics(subject, "oracle", expression)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"subject": subject, "expression": expression, "method": "oracle", "geometry": None,
+    geometry = None if cd is None else {"chamfer_l1_mm": cd, "mesh_to_scan_mm": cd, "scan_to_mesh_mm": cd,
+                                        "normal_consistency": nc, "fscore": {"0.5": 1.0, "1": 1.0}}
+    path.write_text(json.dumps({"subject": subject, "expression": expression, "method": "oracle",
+                                "geometry": geometry,
                                 "photometric": {"psnr": psnr, "ssim": 0.99, "lpips": 0.01, "per_view": []},
                                 "correspondence": None}))
 
@@ -151,6 +155,23 @@ def test_the_oracle_is_a_group_of_table_2_and_in_no_other_table(run_dir, tmp_pat
     reference = tmp_path / "reference.json"
     assert write_reference(run_dir, reference, methods=["oracle"]) == 4
     assert check_regression(run_dir, reference) == ([], 12)
+
+
+def test_the_oracles_true_surface_is_an_unbolded_row_of_table_1(run_dir, tmp_path):
+    for s, cd, nc in (("S01", 0.1, 0.94), ("S02", 0.0, 1.0)):  # S01's scan noisy, S02's not
+        for e in (E1, E2):
+            write_oracle(run_dir, s, e, 40.0, cd, nc)
+    geometry, photometric = T.build_tables(run_dir, tmp_path, ["S01", "S02"], ["gpja", "nicp", "oracle"], [E1, E2],
+                                           names=["geometry", "photometric"])
+    md = to_markdown(geometry)
+    # S01 C.D., N.C. | S02 | Average; the oracle's better scores are not bolded, GPJA's stay the best of the methods
+    assert md_row(md, "Oracle (ground truth)")[:6] == ["0.100", "0.940", "0.000", "1.000", "0.050", "0.970"]
+    assert md_row(md, "GPJA")[:2] == ["**0.200**", "**0.980**"]
+    assert "what the scan's noise alone costs" in md
+    rows = {(r["subject"], r["method"]): r for r in read_csv_rows(to_csv(geometry))}
+    assert rows[("Average", "oracle")]["source"] == "reference" and rows[("Average", "oracle")]["expressions"] == "4"
+    assert float(rows[("Average", "oracle")]["normal_consistency"]) == pytest.approx(0.97)
+    assert "Oracle (ground truth)" in to_markdown(photometric)
 
 
 def write_quality(results, subject, psnr_observed, psnr_unobserved):

@@ -1,7 +1,7 @@
 # Stage 4b, references (synthetic data with its ground truth only): what the methods are measured against.
 # - texture_quality: the template texture against the generator's albedo (observed / unobserved texels).
 # - oracle_metrics: the ground truth (scan, albedo, SH light) rendered by our renderer and scored like a method:
-#   the "oracle" row of Table 2.
+#   the "oracle" row of Table 2; its true surface scored against the scan, the "oracle" row of Table 1.
 # Only these steps and the metrics read the ground truth; the template and the registrations never do.
 from gpja.metrics.oracle import ORACLE, SUBJECT_FILE
 from gpja.metrics.texture_quality import ERROR_IMAGE_FILE, QUALITY_FILE
@@ -55,7 +55,8 @@ if GROUND_TRUTH:
             " --ground-truth-root {params.gt_root} --output {output.json} --error-image {output.image} > {log} 2>&1"
 
     rule oracle_metrics:
-        """The ground-truth surface, albedo and lighting rendered at the reference cameras, scored photometrically."""
+        """The ground-truth surface, albedo and lighting rendered at the reference cameras and scored photometrically;
+        the true surface scored against the scan geometrically (what the scan's noise alone costs)."""
         input:
             unpack(registration_inputs),
             truth=ground_truth_file("{subject}", "{expression}.npz"),
@@ -67,6 +68,7 @@ if GROUND_TRUTH:
             data=data_args(),
             cache=UNDISTORTED,
             gt_root=DATA["ground_truth_root"],
+            settings=json_arg(config["metrics"]),
             backend=BACKEND,
         log:
             log_path("{subject}", ORACLE, "{expression}"),
@@ -79,4 +81,5 @@ if GROUND_TRUTH:
         shell:
             "gpja --threads {threads} oracle --subject {wildcards.subject} --expression {wildcards.expression}"
             " {params.data} --cache-dir {params.cache} --ground-truth-root {params.gt_root} --targets {input.targets}"
-            " --backend {params.backend} --output {output.json} --output-dir {output.details} > {log} 2>&1"
+            " --settings {params.settings} --backend {params.backend} --output {output.json}"
+            " --output-dir {output.details} > {log} 2>&1"
