@@ -285,3 +285,13 @@ def test_slurm_profile_dry_runs_the_real_workflow(tmp_path):
     workdir = copy_workflow(tmp_path)
     out = run([*SNAKEMAKE, "-n", "--profile", "config/profiles/slurm"], cwd=workdir)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_default_profile_keeps_the_schedulers_wake_ups_rare():
+    """Snakemake's re-evaluation timer runs on the rate limit's timespan (profiles/default/config.yaml): at least
+    10 s, at no lower an average rate than Snakemake's default of 100 jobs a second."""
+    from snakemake.settings.types import MaxJobsPerTimespan
+
+    profile = yaml.safe_load((REPO / "profiles" / "default" / "config.yaml").read_text())
+    limit = MaxJobsPerTimespan.parse_choice(profile["max-jobs-per-timespan"])
+    assert limit.timespan >= 10 and limit.max_jobs / limit.timespan >= 100
