@@ -31,6 +31,40 @@ def readme_commands() -> list[str]:
     return [line for line in block.group(1).splitlines() if line.strip() and not line.startswith("#")]
 
 
+def heading_anchors(path: Path) -> set[str]:
+    """The anchors GitHub gives a Markdown file's headings: lower case, punctuation but ``-`` and ``_`` dropped, spaces
+    as hyphens, a repeated heading suffixed ``-1``, ``-2`` ...; headings inside code fences are none."""
+    anchors, seen, fenced = set(), {}, False
+    for line in path.read_text().splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+            continue
+        heading = None if fenced else re.match(r"^#{1,6} (.*)", line)
+        if heading:
+            slug = re.sub(r"[^\w\- ]", "", heading.group(1).strip().lower()).replace(" ", "-")
+            count = seen.get(slug, 0)
+            seen[slug] = count + 1
+            anchors.add(slug if count == 0 else f"{slug}-{count}")
+    return anchors
+
+
+def test_heading_anchors_follow_githubs_rules(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("# The 3 x 6 run (`config/extended.yaml`, issue 17)\n## A\n## A\n```\n# not a heading\n```\n")
+    assert heading_anchors(page) == {"the-3-x-6-run-configextendedyaml-issue-17", "a", "a-1"}
+
+
+def test_links_to_headings_in_the_docs_resolve():
+    """Every ``[text](file.md#anchor)`` and ``[text](#anchor)`` in the README and docs/ names a heading that exists."""
+    broken = []
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for target, anchor in re.findall(r"\]\(([^)#\s]*)#([^)\s]+)\)", page.read_text()):
+            linked = (page.parent / target) if target else page
+            if linked.suffix == ".md" and linked.exists() and anchor not in heading_anchors(linked):
+                broken.append(f"{page.relative_to(ROOT)} -> {target or page.name}#{anchor}")
+    assert not broken, "links to headings that do not exist:\n" + "\n".join(broken)
+
+
 def test_readme_has_exactly_two_commands_and_ci_runs_the_test_one():
     commands = readme_commands()
     assert len(commands) == 2
