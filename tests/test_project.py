@@ -56,11 +56,15 @@ def test_heading_anchors_follow_githubs_rules(tmp_path):
 
 def test_links_to_headings_in_the_docs_resolve():
     """Every ``[text](file.md#anchor)`` and ``[text](#anchor)`` in the README and docs/ names a heading that exists."""
-    broken = []
+    broken, anchors = [], {}  # each linked page's headings parsed once
     for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
         for target, anchor in re.findall(r"\]\(([^)#\s]*)#([^)\s]+)\)", page.read_text()):
-            linked = (page.parent / target) if target else page
-            if linked.suffix == ".md" and linked.exists() and anchor not in heading_anchors(linked):
+            linked = ((page.parent / target) if target else page).resolve()
+            if linked.suffix != ".md" or not linked.exists():
+                continue
+            if linked not in anchors:
+                anchors[linked] = heading_anchors(linked)
+            if anchor not in anchors[linked]:
                 broken.append(f"{page.relative_to(ROOT)} -> {target or page.name}#{anchor}")
     assert not broken, "links to headings that do not exist:\n" + "\n".join(broken)
 
